@@ -1,0 +1,115 @@
+//! Monte Carlo sampling helpers shared by the path tracer and the CPU models of the GI methods.
+
+use std::f32::consts::{PI, TAU};
+
+use bevy::math::{Vec2, Vec3};
+use rand::{RngExt, SeedableRng};
+use rand_pcg::Pcg32;
+
+/// A seeded random number generator for one independent stream (a pixel, a hint, a light path).
+/// Streams with different `(seed, stream)` pairs are independent; the same pair always repeats.
+pub fn rng_for(seed: u64, stream: u64) -> Pcg32 {
+    // SplitMix64 finaliser: decorrelates neighbouring stream indices before they seed PCG.
+    let mut z = seed ^ stream.wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^= z >> 31;
+    Pcg32::seed_from_u64(z)
+}
+
+/// A uniform sample in `[0, 1)²`.
+#[inline]
+pub fn uniform2(rng: &mut Pcg32) -> Vec2 {
+    Vec2::new(rng.random::<f32>(), rng.random::<f32>())
+}
+
+/// An orthonormal basis `(t, b)` around unit `n` (Duff et al. 2017, "Building an Orthonormal Basis,
+/// Revisited"): continuous everywhere and branch-free apart from the sign.
+#[inline]
+pub fn orthonormal_basis(n: Vec3) -> (Vec3, Vec3) {
+    let sign = 1.0f32.copysign(n.z);
+    let a = -1.0 / (sign + n.z);
+    let b = n.x * n.y * a;
+    (
+        Vec3::new(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x),
+        Vec3::new(b, sign + n.y * n.y * a, -n.y),
+    )
+}
+
+/// A cosine-weighted direction in the hemisphere around unit `n`, from `u ∈ [0,1)²`.
+/// Its density is `cos θ / π`.
+#[inline]
+pub fn cosine_hemisphere(n: Vec3, u: Vec2) -> Vec3 {
+    let r = u.x.sqrt();
+    let phi = TAU * u.y;
+    let (t, b) = orthonormal_basis(n);
+    let z = (1.0 - u.x).max(0.0).sqrt();
+    (t * (r * phi.cos()) + b * (r * phi.sin()) + n * z).normalize()
+}
+
+/// A uniform direction on the unit sphere from `u ∈ [0,1)²`. Its density is `1 / 4π`.
+#[inline]
+pub fn uniform_sphere(u: Vec2) -> Vec3 {
+    let z = 1.0 - 2.0 * u.x;
+    let r = (1.0 - z * z).max(0.0).sqrt();
+    let phi = TAU * u.y;
+    Vec3::new(r * phi.cos(), r * phi.sin(), z)
+}
+
+/// A uniform point in the unit ball from three uniforms.
+#[inline]
+pub fn uniform_ball(u: Vec3) -> Vec3 {
+    uniform_sphere(Vec2::new(u.x, u.y)) * u.z.cbrt()
+}
+
+/// Density of [`cosine_hemisphere`] for a direction at `cos θ` from the normal.
+#[inline]
+pub fn cosine_hemisphere_pdf(cos_theta: f32) -> f32 {
+    cos_theta.max(0.0) / PI
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn basis_is_orthonormal_for_many_normals() {
+        let mut rng = rng_for(1, 2);
+        for _ in 0..1000 {
+            let n = uniform_sphere(uniform2(&mut rng));
+            let (t, b) = orthonormal_basis(n);
+            for (x, y) in [(n, t), (n, b), (t, b)] {
+                assert!(x.dot(y).abs() < 1e-5);
+            }
+            for v in [t, b] {
+                assert!((v.length() - 1.0).abs() < 1e-5);
+            }
+        }
+    }
+
+    #[test]
+    fn cosine_hemisphere_has_the_right_mean_cosine() {
+        // E[cos θ] under the density cos θ / π over the hemisphere is 2/3.
+        let mut rng = rng_for(7, 0);
+        let n = Vec3::new(0.3, -0.4, 0.866).normalize();
+        let samples = 200_000;
+        let mean: f64 = (0..samples)
+            .map(|_| {
+                let d = cosine_hemisphere(n, uniform2(&mut rng));
+                assert!(d.dot(n) >= -1e-6);
+                d.dot(n) as f64
+            })
+            .sum::<f64>()
+            / samples as f64;
+        assert!((mean - 2.0 / 3.0).abs() < 3e-3, "mean cosine {mean}");
+    }
+
+    #[test]
+    fn streams_are_reproducible_and_distinct() {
+        let a: Vec<f32> = (0..4).map(|_| rng_for(5, 9).random::<f32>()).collect();
+        assert!(a.windows(2).all(|w| w[0] == w[1]));
+        let mut x = rng_for(5, 9);
+        let mut y = rng_for(5, 10);
+        assert_ne!(x.random::<u64>(), y.random::<u64>());
+    }
+}
