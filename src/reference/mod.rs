@@ -1,0 +1,355 @@
+//! The ground truth: a CPU path tracer over the [`SceneSnapshot`](crate::scene::SceneSnapshot).
+//!
+//! Every GI method of this crate is judged against this renderer (`shared/METRICS.md`). It reads the same
+//! Bevy world as the game — meshes with their transforms, `StandardMaterial` diffuse colour and emission,
+//! directional / point / spot lights in Bevy's units with Bevy's range window and spot-cone falloff, the
+//! camera and its exposure — and solves the rendering equation for Lambertian surfaces:
+//!
+//! * **Estimator**: unidirectional path tracing with next-event estimation towards every analytic light
+//!   (they are delta lights, so NEE is their only estimator), emission picked up by BSDF sampling,
+//!   cosine-weighted hemisphere sampling (the Lambertian BRDF `ρ/π` times `cos θ` over the density
+//!   `cos θ/π` leaves a throughput factor of `ρ`), and Russian roulette from the third vertex on with
+//!   survival probability `min(max(throughput), 0.95)`.
+//! * **Path classes**: a path's contribution is binned by the number `k` of surface vertices that
+//!   *reflect* light on it: `k = 0` is emission seen directly, `k = 1` is direct light, `k ≥ 2` is indirect
+//!   light with `k − 1` diffuse bounces before the last one towards the eye. `max_bounces = N` keeps
+//!   indirect paths with `k − 1 ≤ N` (the per-bounce ground truth of `shared/METRICS.md`).
+//! * **Outputs**: full (`k ≥ 0`), direct-only (`k = 1`) and indirect-only (`k ≥ 2`) images, all multiplied
+//!   by the camera's exposure, plus per-pixel geometry coverage in alpha.
+//! * **Pixel filter**: a box filter over the pixel (uniform jitter); Bevy shades the pixel centre, which
+//!   only differs along edges.
+//! * **Visibility**: lights always cast shadows here, even where Bevy renders them without shadow maps.
+//! * **Burley check**: Bevy's direct light uses Burley's diffuse lobe, up to ~30 % brighter than Lambert at
+//!   grazing angles. [`DiffuseModel::Burley`] evaluates Bevy's `Fd_Burley` for the *direct* term at the
+//!   first vertex only, so that the direct-only image can be checked against Bevy pixel for pixel. All
+//!   indirect transport stays Lambertian, as the metrics require.
+//!
+//! Not modelled: specular reflection, transmission, emissive textures, alpha masks (all surfaces are
+//! opaque and two-sided), environment maps and ambient light.
+
+use std::f32::consts::PI;
+use std::time::Instant;
+
+use bevy::camera::{Exposure, Projection};
+use bevy::math::{Quat, Vec2, Vec3};
+use bevy::prelude::GlobalTransform;
+use rand::RngExt;
+use rayon::prelude::*;
+
+use crate::hdr_image::HdrImage;
+use crate::sampling::{cosine_hemisphere, rng_for, uniform2};
+use crate::scene::{SceneSnapshot, SurfacePoint};
+
+/// Which diffuse lobe shades the direct light at the first vertex.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub enum DiffuseModel {
+    /// `ρ/π`, the BRDF the metrics use everywhere.
+    #[default]
+    Lambert,
+    /// Bevy's `Fd_Burley` (`pbr_lighting.wgsl`), for checking the direct image against Bevy.
+    Burley,
+}
+
+/// A pinhole camera in Bevy's conventions: looks along its local −Z with +Y up.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct ReferenceCamera {
+    pub position: Vec3,
+    pub rotation: Quat,
+    pub projection: CameraProjection,
+    /// Bevy's `Exposure::exposure()`: `2^−ev100 / 1.2`. Every output value is radiance × this.
+    pub exposure: f32,
+}
+
+/// The projection of a [`ReferenceCamera`].
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub enum CameraProjection {
+    /// Vertical field of view in radians; the aspect ratio is the image's.
+    Perspective { fov_y: f32 },
+    /// The view-space rectangle the image covers, in metres (Bevy's `OrthographicProjection::area`).
+    Orthographic { min: Vec2, max: Vec2 },
+}
+
+impl ReferenceCamera {
+    /// The camera of a Bevy entity. `None` for custom projections.
+    pub fn from_bevy(transform: &GlobalTransform, projection: &Projection, exposure: Option<&Exposure>) -> Option<Self> {
+        let projection = match projection {
+            Projection::Perspective(p) => CameraProjection::Perspective { fov_y: p.fov },
+            Projection::Orthographic(o) => CameraProjection::Orthographic {
+                min: o.area.min,
+                max: o.area.max,
+            },
+            Projection::Custom(_) => return None,
+        };
+        let (_, rotation, position) = transform.to_scale_rotation_translation();
+        Some(Self {
+            position,
+            rotation,
+            projection,
+            exposure: exposure.copied().unwrap_or_default().exposure(),
+        })
+    }
+
+    /// The world-space ray through image position `(x, y)` in pixels from the top-left corner.
+    pub fn ray(&self, x: f32, y: f32, width: u32, height: u32) -> (Vec3, Vec3) {
+        let ndc = Vec2::new(2.0 * x / width as f32 - 1.0, 1.0 - 2.0 * y / height as f32);
+        match self.projection {
+            CameraProjection::Perspective { fov_y } => {
+                let tan = (0.5 * fov_y).tan();
+                let aspect = width as f32 / height as f32;
+                let d = Vec3::new(ndc.x * tan * aspect, ndc.y * tan, -1.0).normalize();
+                (self.position, self.rotation * d)
+            }
+            CameraProjection::Orthographic { min, max } => {
+                let t = (ndc + 1.0) * 0.5;
+                let local = min + (max - min) * t;
+                (self.position + self.rotation * local.extend(0.0), self.rotation * Vec3::NEG_Z)
+            }
+        }
+    }
+}
+
+/// What to render.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct ReferenceSettings {
+    pub width: u32,
+    pub height: u32,
+    /// Paths per pixel. Two seeds of `cornell` at 256² agree within 3 % block relative RMSE from 512.
+    pub samples_per_pixel: u32,
+    /// Seed of every random stream; renders with different seeds are independent.
+    pub seed: u64,
+    /// Keep indirect paths with at most this many diffuse bounces before the last one towards the eye.
+    /// `None` keeps all of them (Russian roulette ends paths without bias).
+    pub max_bounces: Option<u32>,
+    /// Diffuse lobe of the direct light at the first vertex.
+    pub direct_model: DiffuseModel,
+    /// First vertex at which Russian roulette may end a path.
+    pub russian_roulette_depth: u32,
+    /// Hard cap on path length, a guard against pathological scenes (albedo ≥ 1).
+    pub max_depth: u32,
+}
+
+impl Default for ReferenceSettings {
+    fn default() -> Self {
+        Self {
+            width: 256,
+            height: 256,
+            samples_per_pixel: 512,
+            seed: 0,
+            max_bounces: None,
+            direct_model: DiffuseModel::Lambert,
+            russian_roulette_depth: 3,
+            max_depth: 256,
+        }
+    }
+}
+
+/// The images of one render, each already multiplied by the camera's exposure.
+#[derive(Clone, Debug)]
+pub struct ReferenceImages {
+    /// Everything: emission + direct + indirect (limited by `max_bounces`).
+    pub full: HdrImage,
+    /// Paths with exactly one reflecting vertex.
+    pub direct: HdrImage,
+    /// Paths with two or more reflecting vertices.
+    pub indirect: HdrImage,
+    /// Wall-clock seconds the render took.
+    pub seconds: f64,
+    /// Contributions dropped because they were not finite (should be 0).
+    pub dropped_samples: u64,
+}
+
+#[derive(Clone, Copy, Default)]
+struct PixelSum {
+    emission: Vec3,
+    direct: Vec3,
+    indirect: Vec3,
+    hits: u32,
+    dropped: u32,
+}
+
+impl PixelSum {
+    fn add(&mut self, reflecting_vertices: u32, value: Vec3) {
+        if !value.is_finite() {
+            self.dropped += 1;
+            return;
+        }
+        match reflecting_vertices {
+            0 => self.emission += value,
+            1 => self.direct += value,
+            _ => self.indirect += value,
+        }
+    }
+}
+
+/// Bevy's `Fd_Burley` divided by the Lambertian `1/π`: the factor by which Bevy's direct diffuse light
+/// differs from Lambert's for these unit vectors.
+pub fn burley_over_lambert(n: Vec3, v: Vec3, l: Vec3, perceptual_roughness: f32) -> f32 {
+    // perceptualRoughnessToRoughness: clamp to [0.089, 1], then square.
+    let roughness = perceptual_roughness.clamp(0.089, 1.0).powi(2);
+    let n_dot_v = n.dot(v).max(1e-4);
+    let n_dot_l = n.dot(l).clamp(0.0, 1.0);
+    let h = (l + v).try_normalize().unwrap_or(n);
+    let l_dot_h = l.dot(h).clamp(0.0, 1.0);
+    let f90 = 0.5 + 2.0 * roughness * l_dot_h * l_dot_h;
+    let schlick = |c: f32| 1.0 + (f90 - 1.0) * (1.0 - c).powi(5);
+    schlick(n_dot_l) * schlick(n_dot_v)
+}
+
+/// Renders `scene` through `camera`. Deterministic for a given seed, whatever the thread count.
+pub fn render(scene: &SceneSnapshot, camera: &ReferenceCamera, settings: &ReferenceSettings) -> ReferenceImages {
+    let start = Instant::now();
+    let (width, height) = (settings.width.max(1), settings.height.max(1));
+    let spp = settings.samples_per_pixel.max(1);
+    let exposure = if camera.exposure.is_finite() && camera.exposure > 0.0 { camera.exposure } else { 1.0 };
+    // The longest class to keep: NEE at a vertex adds one reflecting vertex.
+    let max_reflecting = settings
+        .max_bounces
+        .map_or(settings.max_depth, |b| (b + 1).min(settings.max_depth))
+        .max(1);
+    let scale = scene
+        .bounds()
+        .map_or(1.0, |(lo, hi)| lo.abs().max(hi.abs()).max_element().max(1.0));
+    let epsilon = 1e-4 * scale;
+
+    let rows: Vec<Vec<PixelSum>> = (0..height)
+        .into_par_iter()
+        .map(|y| {
+            (0..width)
+                .map(|x| {
+                    let pixel = y as u64 * width as u64 + x as u64;
+                    let mut rng = rng_for(settings.seed, pixel);
+                    let mut sum = PixelSum::default();
+                    for _ in 0..spp {
+                        let j = uniform2(&mut rng);
+                        let (origin, dir) = camera.ray(x as f32 + j.x, y as f32 + j.y, width, height);
+                        trace_path(scene, origin, dir, settings, max_reflecting, exposure, epsilon, &mut rng, &mut sum);
+                    }
+                    sum
+                })
+                .collect()
+        })
+        .collect();
+
+    let mut full = HdrImage::new(width, height);
+    let mut direct = HdrImage::new(width, height);
+    let mut indirect = HdrImage::new(width, height);
+    let mut dropped = 0u64;
+    let inv = 1.0 / spp as f32;
+    for (y, row) in rows.iter().enumerate() {
+        for (x, s) in row.iter().enumerate() {
+            let coverage = s.hits as f32 * inv;
+            let (x, y) = (x as u32, y as u32);
+            let px = |v: Vec3| [v.x * inv * exposure, v.y * inv * exposure, v.z * inv * exposure, coverage];
+            full.set(x, y, px(s.emission + s.direct + s.indirect));
+            direct.set(x, y, px(s.direct));
+            indirect.set(x, y, px(s.indirect));
+            dropped += s.dropped as u64;
+        }
+    }
+    ReferenceImages {
+        full,
+        direct,
+        indirect,
+        seconds: start.elapsed().as_secs_f64(),
+        dropped_samples: dropped,
+    }
+}
+
+/// Normals at a hit facing the side the ray came from.
+fn facing_normals(surface: &SurfacePoint, incoming: Vec3) -> (Vec3, Vec3) {
+    let ng = if surface.geometric_normal.dot(incoming) > 0.0 {
+        -surface.geometric_normal
+    } else {
+        surface.geometric_normal
+    };
+    let ns = if surface.normal.dot(ng) < 0.0 { -surface.normal } else { surface.normal };
+    (ng, ns)
+}
+
+#[expect(clippy::too_many_arguments, reason = "the inner loop of the tracer, kept free of allocations")]
+fn trace_path(
+    scene: &SceneSnapshot,
+    origin: Vec3,
+    direction: Vec3,
+    settings: &ReferenceSettings,
+    max_reflecting: u32,
+    exposure: f32,
+    epsilon: f32,
+    rng: &mut rand_pcg::Pcg32,
+    sum: &mut PixelSum,
+) {
+    let Some(mut hit) = scene.intersect(origin, direction, 0.0, f32::INFINITY) else {
+        return;
+    };
+    sum.hits += 1;
+    let mut ray_origin = origin;
+    let mut ray_dir = direction;
+    let mut throughput = Vec3::ONE;
+    // Number of surface vertices on the path so far, including this one.
+    let mut depth = 1u32;
+    loop {
+        let surface = scene.surface(ray_origin, ray_dir, &hit);
+        let (ng, ns) = facing_normals(&surface, ray_dir);
+
+        // Emission at this vertex has been reflected by the `depth − 1` vertices before it.
+        let emission = surface.material.emission(exposure);
+        if emission != Vec3::ZERO && depth - 1 <= max_reflecting {
+            sum.add(depth - 1, throughput * emission);
+        }
+
+        let p = surface.position + ng * epsilon;
+        let albedo = surface.diffuse;
+        // Next-event estimation: light reflected here has `depth` reflecting vertices.
+        if depth <= max_reflecting && albedo != Vec3::ZERO {
+            for entry in &scene.lights {
+                let Some((l, distance, irradiance)) = entry.light.incident(surface.position) else {
+                    continue;
+                };
+                let cos = ns.dot(l);
+                if cos <= 0.0 || ng.dot(l) <= 0.0 {
+                    continue;
+                }
+                let t_max = if distance.is_finite() { distance - 2.0 * epsilon } else { f32::INFINITY };
+                if scene.occluded(p, l, 0.0, t_max) {
+                    continue;
+                }
+                let mut brdf = albedo / PI;
+                if depth == 1 && settings.direct_model == DiffuseModel::Burley {
+                    brdf *= burley_over_lambert(ns, -ray_dir, l, surface.material.perceptual_roughness);
+                }
+                sum.add(depth, throughput * brdf * irradiance * cos);
+            }
+        }
+
+        // Continue only while a longer path can still be kept (its emission has `depth` reflecting
+        // vertices).
+        if depth >= max_reflecting + 1 || depth >= settings.max_depth {
+            return;
+        }
+        if depth >= settings.russian_roulette_depth {
+            let survive = throughput.max_element().min(0.95);
+            if survive <= 0.0 || rng.random::<f32>() >= survive {
+                return;
+            }
+            throughput /= survive;
+        }
+        let next = cosine_hemisphere(ns, uniform2(rng));
+        if next.dot(ng) <= 0.0 {
+            return;
+        }
+        throughput *= albedo;
+        if throughput == Vec3::ZERO {
+            return;
+        }
+        let Some(next_hit) = scene.intersect(p, next, 0.0, f32::INFINITY) else {
+            return;
+        };
+        hit = next_hit;
+        ray_origin = p;
+        ray_dir = next;
+        depth += 1;
+    }
+}
+
+#[cfg(test)]
+mod tests;
