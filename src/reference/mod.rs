@@ -17,7 +17,7 @@
 //! * **Outputs**: full (`k ≥ 0`), direct-only (`k = 1`) and indirect-only (`k ≥ 2`) images, all multiplied
 //!   by the camera's exposure, plus per-pixel geometry coverage in alpha.
 //! * **Pixel filter**: a box filter over the pixel (uniform jitter); Bevy shades the pixel centre, which
-//!   only differs along edges.
+//!   only differs along edges. [`ReferenceSettings::pixel_centers`] samples the centre instead.
 //! * **Visibility**: lights always cast shadows here, even where Bevy renders them without shadow maps.
 //! * **Burley check**: Bevy's direct light uses Burley's diffuse lobe, up to ~30 % brighter than Lambert at
 //!   grazing angles. [`DiffuseModel::Burley`] evaluates Bevy's `Fd_Burley` for the *direct* term at the
@@ -122,6 +122,9 @@ pub struct ReferenceSettings {
     pub max_bounces: Option<u32>,
     /// Diffuse lobe of the direct light at the first vertex.
     pub direct_model: DiffuseModel,
+    /// Shoot every camera ray through the pixel centre, as the rasteriser shades, instead of box-filtering
+    /// the pixel. Direct light from Bevy's (delta) lights is then noise-free and aligns with Bevy's edges.
+    pub pixel_centers: bool,
     /// First vertex at which Russian roulette may end a path.
     pub russian_roulette_depth: u32,
     /// Hard cap on path length, a guard against pathological scenes (albedo ≥ 1).
@@ -137,6 +140,7 @@ impl Default for ReferenceSettings {
             seed: 0,
             max_bounces: None,
             direct_model: DiffuseModel::Lambert,
+            pixel_centers: false,
             russian_roulette_depth: 3,
             max_depth: 256,
         }
@@ -220,7 +224,7 @@ pub fn render(scene: &SceneSnapshot, camera: &ReferenceCamera, settings: &Refere
                     let mut rng = rng_for(settings.seed, pixel);
                     let mut sum = PixelSum::default();
                     for _ in 0..spp {
-                        let j = uniform2(&mut rng);
+                        let j = if settings.pixel_centers { Vec2::splat(0.5) } else { uniform2(&mut rng) };
                         let (origin, dir) = camera.ray(x as f32 + j.x, y as f32 + j.y, width, height);
                         trace_path(scene, origin, dir, settings, max_reflecting, exposure, epsilon, &mut rng, &mut sum);
                     }

@@ -1,0 +1,77 @@
+//! Compares two linear EXRs with the metrics of `shared/METRICS.md` and writes a false-colour difference PNG.
+//!
+//! `cargo run --release --example compare -- METHOD.exr GROUND_TRUTH.exr [--diff OUT.png] [--scale S]`
+//!
+//! Prints the block relative RMSE (the headline number), the per-pixel relative RMSE, the energy ratio and,
+//! with the `flip` feature, the mean FLIP error. The difference image maps `|a − r|` divided by the mean of
+//! the reference to black → blue → green → yellow → red at `S` (default 1.0); it goes beside the first
+//! image as `A.diff.png` unless `--diff` names it.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use bevy_diffuse_gi::hdr_image::HdrImage;
+use bevy_diffuse_gi::metrics;
+
+const USAGE: &str = "usage: compare A.exr REFERENCE.exr [--diff OUT.png] [--scale S]";
+
+fn main() -> ExitCode {
+    match run() {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(message) => {
+            eprintln!("compare: {message}");
+            ExitCode::from(2)
+        }
+    }
+}
+
+fn run() -> Result<(), String> {
+    let mut args = std::env::args().skip(1);
+    let mut files = Vec::new();
+    let mut diff = None;
+    let mut scale = 1.0f32;
+    while let Some(arg) = args.next() {
+        match arg.as_str() {
+            "--diff" => diff = Some(PathBuf::from(args.next().ok_or("--diff needs a path")?)),
+            "--scale" => {
+                let text = args.next().ok_or("--scale needs a value")?;
+                scale = text.parse().map_err(|_| format!("--scale: `{text}` is not a number"))?;
+                if !(scale > 0.0 && scale.is_finite()) {
+                    return Err(format!("--scale must be positive, got {text}"));
+                }
+            }
+            "--help" | "-h" => return Err(USAGE.into()),
+            other if other.starts_with("--") => return Err(format!("unknown flag `{other}`\n{USAGE}")),
+            file => files.push(PathBuf::from(file)),
+        }
+    }
+    let [a_path, r_path] = files.as_slice() else {
+        return Err(format!("expected two images, got {}\n{USAGE}", files.len()));
+    };
+    let a = HdrImage::read(a_path).map_err(|e| e.to_string())?;
+    let r = HdrImage::read(r_path).map_err(|e| e.to_string())?;
+
+    #[cfg(feature = "flip")]
+    let m = metrics::compare_with_flip(&a, &r, 1.0).map_err(|e| e.to_string())?;
+    #[cfg(not(feature = "flip"))]
+    let m = metrics::compare(&a, &r).map_err(|e| e.to_string())?;
+
+    println!("image            {}", a_path.display());
+    println!("reference        {}", r_path.display());
+    println!("block rel. RMSE  {:.4}   ({} blocks of 4x4)", m.block_relative_rmse, m.blocks);
+    println!("pixel rel. RMSE  {:.4}   ({} pixels)", m.relative_rmse, m.pixels);
+    println!("energy ratio     {:.4}", m.energy_ratio);
+    match m.flip {
+        Some(flip) => println!("mean FLIP        {flip:.4}"),
+        None => println!("mean FLIP        (build with --features flip)"),
+    }
+
+    let diff_path = diff.unwrap_or_else(|| bevy_diffuse_gi::headless::sibling(a_path, "diff", "png"));
+    let picture = metrics::difference_image(&a, &r, scale).map_err(|e| e.to_string())?;
+    if let Some(parent) = diff_path.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent).map_err(|e| format!("{}: {e}", parent.display()))?;
+    }
+    picture.save(&diff_path).map_err(|e| format!("{}: {e}", diff_path.display()))?;
+    println!("difference       {}", diff_path.display());
+    Ok(())
+}

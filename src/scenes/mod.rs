@@ -1,0 +1,269 @@
+//! The standard scenes of `shared/SCENES.md`, built the same way for the examples, the tests, the headless
+//! renderer and the ground-truth tracer.
+//!
+//! * [`StandardScene::Cornell`]: the Cornell box with a spot light (`cornell.rs`).
+//! * [`StandardScene::Gltf`]: any glTF 2.0 file, loaded through Bevy's glTF loader (meshes,
+//!   `StandardMaterial`s, `KHR_lights_punctual` lights, the first camera). Bevy spawns glTF lights without
+//!   shadows; here they get shadows on and a [`GiLight`], so that a wall blocks light in the game as it
+//!   does in the tracer. Lights keep Bevy's glTF conversion: candela × 4π lumens for point and spot lights,
+//!   lux for directional lights, and a 20 m range where the file gives none.
+//!
+//! Add [`StandardScenesPlugin`], call [`spawn_standard_scene`], and wait for [`SceneStatus::Ready`]. The
+//! camera to render through carries [`SceneCamera`]; apps add their render target to it.
+
+mod cornell;
+
+use std::path::{Path, PathBuf};
+
+use bevy::asset::LoadState;
+use bevy::camera::Exposure;
+use bevy::gltf::Gltf;
+use bevy::light::GlobalAmbientLight;
+use bevy::prelude::*;
+use bevy::world_serialization::{WorldAssetRoot, WorldInstanceReady};
+
+use crate::light::GiLight;
+
+pub use cornell::{CORNELL_EV100, spawn_cornell};
+
+/// A scene the crate knows how to build.
+#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
+pub enum StandardScene {
+    /// The Cornell box with a spot light (`shared/SCENES.md`).
+    Cornell,
+    /// A glTF 2.0 file (`.glb` or `.gltf`).
+    Gltf(PathBuf),
+}
+
+impl StandardScene {
+    /// Names accepted by [`StandardScene::parse`] besides file paths.
+    pub const NAMES: &'static [&'static str] = &["cornell"];
+
+    /// A scene name, or a path to a `.glb`/`.gltf` file (which must exist).
+    pub fn parse(text: &str) -> Result<Self, String> {
+        match text {
+            "cornell" => Ok(Self::Cornell),
+            path if path.ends_with(".glb") || path.ends_with(".gltf") => {
+                let p = Path::new(path);
+                if !p.is_file() {
+                    return Err(format!("scene file {path} does not exist"));
+                }
+                Ok(Self::Gltf(p.to_path_buf()))
+            }
+            other => Err(format!(
+                "unknown scene `{other}`: expected one of {} or a path to a .glb/.gltf file",
+                Self::NAMES.join(", ")
+            )),
+        }
+    }
+
+    /// A short name for reports.
+    pub fn name(&self) -> String {
+        match self {
+            Self::Cornell => "cornell".into(),
+            Self::Gltf(path) => path.display().to_string(),
+        }
+    }
+}
+
+/// The camera a standard scene is seen through. The scene gives it a transform, a projection and an
+/// [`Exposure`]; the app adds its render target and settings.
+#[derive(Component, Clone, Copy, Debug, Default)]
+pub struct SceneCamera;
+
+/// Where the scene set up by [`spawn_standard_scene`] stands.
+#[derive(Resource, Clone, Debug, Default, PartialEq)]
+pub enum SceneStatus {
+    /// No scene was asked for.
+    #[default]
+    None,
+    /// Assets are loading.
+    Loading,
+    /// Everything is spawned and the [`SceneCamera`] exists.
+    Ready,
+    /// The scene cannot be built; the message names the problem.
+    Failed(String),
+}
+
+/// A glTF file being loaded.
+#[derive(Resource)]
+struct PendingGltf {
+    handle: Handle<Gltf>,
+    path: PathBuf,
+    spawned: bool,
+    ev100: f32,
+}
+
+/// Finishes loading glTF scenes: picks the camera, turns shadows on and makes lights bounce.
+pub struct StandardScenesPlugin;
+
+impl Plugin for StandardScenesPlugin {
+    fn build(&self, app: &mut App) {
+        app.init_resource::<SceneStatus>()
+            .add_systems(Update, poll_gltf.run_if(resource_exists::<PendingGltf>))
+            .add_observer(prepare_loaded_gltf);
+    }
+}
+
+/// Spawns `scene`. `ev100` overrides the scene's exposure (cornell: [`CORNELL_EV100`]; glTF files, which
+/// carry no exposure: 0). Sets the global ambient light to zero, as every measured scene does.
+///
+/// glTF paths are loaded through the asset server: relative paths are relative to the `AssetPlugin`'s
+/// folder, so apps that load arbitrary files should give an absolute path (as the headless renderer does).
+pub fn spawn_standard_scene(
+    commands: &mut Commands,
+    asset_server: &AssetServer,
+    meshes: &mut Assets<Mesh>,
+    materials: &mut Assets<StandardMaterial>,
+    scene: &StandardScene,
+    ev100: Option<f32>,
+) {
+    commands.insert_resource(GlobalAmbientLight {
+        brightness: 0.0,
+        ..default()
+    });
+    match scene {
+        StandardScene::Cornell => {
+            spawn_cornell(commands, meshes, materials, ev100.unwrap_or(CORNELL_EV100));
+            commands.insert_resource(SceneStatus::Ready);
+        }
+        StandardScene::Gltf(path) => {
+            let handle = asset_server.load::<Gltf>(path.clone());
+            commands.insert_resource(PendingGltf {
+                handle,
+                path: path.clone(),
+                spawned: false,
+                ev100: ev100.unwrap_or(0.0),
+            });
+            commands.insert_resource(SceneStatus::Loading);
+        }
+    }
+}
+
+fn poll_gltf(
+    mut commands: Commands,
+    mut pending: ResMut<PendingGltf>,
+    asset_server: Res<AssetServer>,
+    gltfs: Res<Assets<Gltf>>,
+) {
+    if pending.spawned {
+        return;
+    }
+    match asset_server.get_load_state(pending.handle.id()) {
+        Some(LoadState::Failed(error)) => {
+            commands.insert_resource(SceneStatus::Failed(format!(
+                "cannot load glTF {}: {error}",
+                pending.path.display()
+            )));
+            pending.spawned = true;
+        }
+        Some(LoadState::Loaded) => {
+            if !asset_server.is_loaded_with_dependencies(pending.handle.id()) {
+                return;
+            }
+            let Some(gltf) = gltfs.get(pending.handle.id()) else {
+                return;
+            };
+            let Some(scene) = gltf.default_scene.clone().or_else(|| gltf.scenes.first().cloned()) else {
+                commands.insert_resource(SceneStatus::Failed(format!(
+                    "glTF {} has no scene",
+                    pending.path.display()
+                )));
+                pending.spawned = true;
+                return;
+            };
+            commands.spawn((WorldAssetRoot(scene), GltfSceneRoot { ev100: pending.ev100 }));
+            pending.spawned = true;
+        }
+        _ => {}
+    }
+}
+
+/// The root entity of a loaded glTF scene.
+#[derive(Component)]
+struct GltfSceneRoot {
+    ev100: f32,
+}
+
+type LightQuery<'a> = (
+    Option<&'a mut DirectionalLight>,
+    Option<&'a mut PointLight>,
+    Option<&'a mut SpotLight>,
+);
+
+fn prepare_loaded_gltf(
+    ready: On<WorldInstanceReady>,
+    mut commands: Commands,
+    roots: Query<&GltfSceneRoot>,
+    children: Query<&Children>,
+    mut cameras: Query<&mut Camera, With<Camera3d>>,
+    mut lights: Query<LightQuery>,
+    aabbs: Query<(&bevy::camera::primitives::Aabb, &GlobalTransform)>,
+) {
+    let Ok(root) = roots.get(ready.entity) else {
+        return;
+    };
+    let ev100 = root.ev100;
+    let mut first_camera = None;
+    for entity in children.iter_descendants_depth_first(ready.entity) {
+        if let Ok(mut camera) = cameras.get_mut(entity) {
+            if first_camera.is_none() {
+                first_camera = Some(entity);
+            } else {
+                camera.is_active = false;
+            }
+        }
+        if let Ok((directional, point, spot)) = lights.get_mut(entity) {
+            if let Some(mut l) = directional {
+                l.shadow_maps_enabled = true;
+            }
+            if let Some(mut l) = point {
+                l.shadow_maps_enabled = true;
+            }
+            if let Some(mut l) = spot {
+                l.shadow_maps_enabled = true;
+            }
+            commands.entity(entity).insert(GiLight::default());
+        }
+    }
+    match first_camera {
+        Some(camera) => {
+            commands.entity(camera).insert((SceneCamera, Exposure { ev100 }));
+        }
+        None => {
+            // No camera in the file: frame the scene's bounds from +Z.
+            let mut lo = Vec3::splat(f32::INFINITY);
+            let mut hi = Vec3::splat(f32::NEG_INFINITY);
+            for entity in children.iter_descendants(ready.entity) {
+                if let Ok((aabb, transform)) = aabbs.get(entity) {
+                    for corner in [-1.0f32, 1.0] {
+                        for c2 in [-1.0f32, 1.0] {
+                            for c3 in [-1.0f32, 1.0] {
+                                let local = Vec3::from(aabb.center)
+                                    + Vec3::from(aabb.half_extents) * Vec3::new(corner, c2, c3);
+                                let p = transform.transform_point(local);
+                                lo = lo.min(p);
+                                hi = hi.max(p);
+                            }
+                        }
+                    }
+                }
+            }
+            let (center, radius) = if lo.is_finite() && hi.is_finite() {
+                ((lo + hi) * 0.5, ((hi - lo) * 0.5).length().max(0.1))
+            } else {
+                (Vec3::ZERO, 1.0)
+            };
+            let fov = 45f32.to_radians();
+            let distance = radius / (0.5 * fov).sin();
+            commands.spawn((
+                Camera3d::default(),
+                Projection::Perspective(PerspectiveProjection { fov, ..default() }),
+                Transform::from_translation(center + Vec3::Z * distance).looking_at(center, Vec3::Y),
+                Exposure { ev100 },
+                SceneCamera,
+            ));
+        }
+    }
+    commands.insert_resource(SceneStatus::Ready);
+}

@@ -1,0 +1,80 @@
+//! Shared helpers of the GPU tests: serialised headless renders, region checks, and failure images.
+#![allow(dead_code, reason = "each test binary uses a different subset")]
+
+use std::path::PathBuf;
+use std::sync::Mutex;
+
+use bevy_diffuse_gi::hdr_image::HdrImage;
+use bevy_diffuse_gi::headless::{self, HeadlessOptions};
+use bevy_diffuse_gi::metrics;
+
+/// One Bevy app at a time: lavapipe shares two cores, and each app owns a Vulkan device.
+static GPU: Mutex<()> = Mutex::new(());
+
+/// Renders `options` in this process and returns the main image. Panics with the renderer's message.
+pub fn render(options: &HeadlessOptions) -> headless::HeadlessReport {
+    let _guard = GPU.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+    if std::env::var_os("WGPU_BACKEND").is_none() {
+        // Lavapipe is a Vulkan driver; do not let wgpu wander to GL.
+        // SAFETY: set before any render thread of this test binary exists (the lock above is held).
+        unsafe { std::env::set_var("WGPU_BACKEND", "vulkan") };
+    }
+    headless::run(options).unwrap_or_else(|e| panic!("headless render failed: {e}"))
+}
+
+/// Where failing tests leave their images: `target/test-failures/<test>/`.
+pub fn failure_dir(test: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("target/test-failures").join(test)
+}
+
+/// Saves `actual` (EXR and PNG), and, with a reference, the reference PNG and a false-colour difference.
+pub fn save_failure(test: &str, actual: &HdrImage, reference: Option<&HdrImage>) -> PathBuf {
+    let dir = failure_dir(test);
+    std::fs::create_dir_all(&dir).ok();
+    actual.write_exr(dir.join("actual.exr")).ok();
+    actual.write_png_tonemapped(dir.join("actual.png"), 1.0).ok();
+    if let Some(reference) = reference {
+        reference.write_png_tonemapped(dir.join("reference.png"), 1.0).ok();
+        if let Ok(diff) = metrics::difference_image(actual, reference, 1.0) {
+            diff.save(dir.join("difference.png")).ok();
+        }
+    }
+    dir
+}
+
+/// A named rectangle `[x0, x1) × [y0, y1)` of a 256² cornell image.
+#[derive(Clone, Copy, Debug)]
+pub struct Region {
+    pub name: &'static str,
+    pub x0: u32,
+    pub y0: u32,
+    pub x1: u32,
+    pub y1: u32,
+}
+
+impl Region {
+    pub const fn new(name: &'static str, x0: u32, y0: u32, x1: u32, y1: u32) -> Self {
+        Self { name, x0, y0, x1, y1 }
+    }
+
+    /// Mean RGB of the covered pixels; panics (saving the image) when none is covered.
+    pub fn mean(&self, test: &str, image: &HdrImage) -> [f32; 3] {
+        image.region_mean(self.x0, self.y0, self.x1, self.y1).unwrap_or_else(|| {
+            let dir = save_failure(test, image, None);
+            panic!("region {} sees no geometry; image saved in {}", self.name, dir.display())
+        })
+    }
+}
+
+pub fn luminance(rgb: [f32; 3]) -> f32 {
+    0.2126 * rgb[0] + 0.7152 * rgb[1] + 0.0722 * rgb[2]
+}
+
+/// Asserts `condition`, saving the images first when it fails.
+#[track_caller]
+pub fn check(test: &str, condition: bool, actual: &HdrImage, reference: Option<&HdrImage>, message: String) {
+    if !condition {
+        let dir = save_failure(test, actual, reference);
+        panic!("{message}\n(images saved in {})", dir.display());
+    }
+}
