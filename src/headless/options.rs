@@ -77,7 +77,7 @@ impl Default for HeadlessOptions {
             out: PathBuf::from("out/render.exr"),
             method: HeadlessMethod::None,
             indirect_only: false,
-            spp: 512,
+            spp: 2048,
             seed: 0,
             max_bounces: None,
             ev100: None,
@@ -99,7 +99,7 @@ usage: headless [--scene cornell|PATH.glb] [--size WxH] [--frames N] [--out FILE
   --out            the linear float EXR to write; FILE.json goes beside it (default out/render.exr)
   --method         none = Bevy's direct light; reference = CPU path tracer (default none)
   --indirect-only  write only the indirect light the method adds
-  --spp            path-tracer samples per pixel, 1..=1048576            (default 512)
+  --spp            path-tracer samples per pixel, 1..=1048576            (default 2048)
   --seed           path-tracer random seed                               (default 0)
   --max-bounces    path tracer: keep indirect light of at most N bounces (default all)
   --ev100          exposure override in EV100                            (default: the scene's)

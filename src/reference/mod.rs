@@ -5,6 +5,10 @@
 //! directional / point / spot lights in Bevy's units with Bevy's range window and spot-cone falloff, the
 //! camera and its exposure — and solves the rendering equation for Lambertian surfaces:
 //!
+//! * **Sampling**: Owen-scrambled Sobol points (`sobol_burley`), one 4D point per path vertex, padded
+//!   across vertices (see [`SobolStream`]). On `cornell` at 256² and 256 spp, two seeds' indirect images
+//!   differ by 6.3 % block relative RMSE against 8.2 % with independent random numbers: about 1.7× fewer
+//!   samples for the same noise.
 //! * **Estimator**: unidirectional path tracing with next-event estimation towards every analytic light
 //!   (they are delta lights, so NEE is their only estimator), emission picked up by BSDF sampling,
 //!   cosine-weighted hemisphere sampling (the Lambertian BRDF `ρ/π` times `cos θ` over the density
@@ -33,11 +37,10 @@ use std::time::Instant;
 use bevy::camera::{Exposure, Projection};
 use bevy::math::{Quat, Vec2, Vec3};
 use bevy::prelude::GlobalTransform;
-use rand::RngExt;
 use rayon::prelude::*;
 
 use crate::hdr_image::HdrImage;
-use crate::sampling::{cosine_hemisphere, rng_for, uniform2};
+use crate::sampling::{SobolStream, cosine_hemisphere};
 use crate::scene::{SceneSnapshot, SurfacePoint};
 
 /// Which diffuse lobe shades the direct light at the first vertex.
@@ -113,7 +116,8 @@ impl ReferenceCamera {
 pub struct ReferenceSettings {
     pub width: u32,
     pub height: u32,
-    /// Paths per pixel. Two seeds of `cornell` at 256² agree within 3 % block relative RMSE from 512.
+    /// Paths per pixel. Two seeds of `cornell`'s indirect light at 256² agree within 3 % block relative
+    /// RMSE from about 1100; the default 2048 gives about 2.2 %.
     pub samples_per_pixel: u32,
     /// Seed of every random stream; renders with different seeds are independent.
     pub seed: u64,
@@ -136,7 +140,7 @@ impl Default for ReferenceSettings {
         Self {
             width: 256,
             height: 256,
-            samples_per_pixel: 512,
+            samples_per_pixel: 2048,
             seed: 0,
             max_bounces: None,
             direct_model: DiffuseModel::Lambert,
@@ -221,12 +225,18 @@ pub fn render(scene: &SceneSnapshot, camera: &ReferenceCamera, settings: &Refere
             (0..width)
                 .map(|x| {
                     let pixel = y as u64 * width as u64 + x as u64;
-                    let mut rng = rng_for(settings.seed, pixel);
+                    let stream = SobolStream::new(settings.seed, pixel);
                     let mut sum = PixelSum::default();
-                    for _ in 0..spp {
-                        let j = if settings.pixel_centers { Vec2::splat(0.5) } else { uniform2(&mut rng) };
+                    for index in 0..spp {
+                        let sample = PathSample { stream, index };
+                        let j = if settings.pixel_centers {
+                            Vec2::splat(0.5)
+                        } else {
+                            let u = sample.vertex(0);
+                            Vec2::new(u[0], u[1])
+                        };
                         let (origin, dir) = camera.ray(x as f32 + j.x, y as f32 + j.y, width, height);
-                        trace_path(scene, origin, dir, settings, max_reflecting, exposure, epsilon, &mut rng, &mut sum);
+                        trace_path(scene, origin, dir, settings, max_reflecting, exposure, epsilon, sample, &mut sum);
                     }
                     sum
                 })
@@ -259,6 +269,21 @@ pub fn render(scene: &SceneSnapshot, camera: &ReferenceCamera, settings: &Refere
     }
 }
 
+/// The random numbers of one path: sample `index` of the pixel's Sobol stream.
+#[derive(Clone, Copy)]
+struct PathSample {
+    stream: SobolStream,
+    index: u32,
+}
+
+impl PathSample {
+    /// Four numbers for path vertex `vertex` (0 = the camera).
+    #[inline]
+    fn vertex(&self, vertex: u32) -> [f32; 4] {
+        self.stream.vertex_4d(self.index, vertex)
+    }
+}
+
 /// Normals at a hit facing the side the ray came from.
 fn facing_normals(surface: &SurfacePoint, incoming: Vec3) -> (Vec3, Vec3) {
     let ng = if surface.geometric_normal.dot(incoming) > 0.0 {
@@ -279,7 +304,7 @@ fn trace_path(
     max_reflecting: u32,
     exposure: f32,
     epsilon: f32,
-    rng: &mut rand_pcg::Pcg32,
+    sample: PathSample,
     sum: &mut PixelSum,
 ) {
     let Some(mut hit) = scene.intersect(origin, direction, 0.0, f32::INFINITY) else {
@@ -330,14 +355,15 @@ fn trace_path(
         if depth >= max_reflecting + 1 || depth >= settings.max_depth {
             return;
         }
+        let u = sample.vertex(depth);
         if depth >= settings.russian_roulette_depth {
             let survive = throughput.max_element().min(0.95);
-            if survive <= 0.0 || rng.random::<f32>() >= survive {
+            if survive <= 0.0 || u[2] >= survive {
                 return;
             }
             throughput /= survive;
         }
-        let next = cosine_hemisphere(ns, uniform2(rng));
+        let next = cosine_hemisphere(ns, Vec2::new(u[0], u[1]));
         if next.dot(ng) <= 0.0 {
             return;
         }
