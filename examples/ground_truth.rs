@@ -5,7 +5,7 @@
 //!
 //! Accepts every flag of the `headless` example (`--size`, `--max-bounces`, `--ev100`, …) plus `--seeds N`
 //! (default 4); `--seed S` is the first seed. Writes `OUT` (the indirect-only image, what GI methods are
-//! compared with), `OUT.full.exr`, `OUT.direct.exr`, `OUT.indirect.exr` and `OUT.json` with:
+//! compared with), `OUT.full.exr` and `OUT.direct.exr` (not with `--indirect-only`), and `OUT.json` with:
 //! * `seed_vs_seed`: metrics of the first seed's indirect image against the second's — the convergence of
 //!   one render (`shared/METRICS.md` asks for < 3 % block relative RMSE);
 //! * `half_vs_half`: the average of the even seeds against the average of the odd ones. Each half carries
@@ -83,8 +83,10 @@ fn run() -> Result<(), String> {
     let half_vs_half = metrics::compare(&even, &odd).map_err(|e| e.to_string())?;
 
     indirect.write_exr(&options.out).map_err(|e| e.to_string())?;
-    for (suffix, image) in [("full", &full), ("direct", &direct), ("indirect", &indirect)] {
-        image.write_exr(sibling(&options.out, suffix, "exr")).map_err(|e| e.to_string())?;
+    if !options.indirect_only {
+        for (suffix, image) in [("full", &full), ("direct", &direct)] {
+            image.write_exr(sibling(&options.out, suffix, "exr")).map_err(|e| e.to_string())?;
+        }
     }
     let command: Vec<String> = std::env::args().skip(1).collect();
     let sidecar = json!({
@@ -110,6 +112,6 @@ fn run() -> Result<(), String> {
         half_vs_half.block_relative_rmse,
         half_vs_half.block_relative_rmse / 2.0
     );
-    println!("wrote {} (+ .full/.direct/.indirect.exr, .json)", options.out.display());
+    println!("wrote {} and its .json", options.out.display());
     Ok(())
 }

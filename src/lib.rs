@@ -25,6 +25,7 @@ pub mod reference;
 pub mod sampling;
 pub mod scene;
 pub mod scenes;
+pub mod sh;
 
 use bevy::prelude::*;
 
