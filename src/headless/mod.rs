@@ -46,10 +46,12 @@ pub use options::{HeadlessMethod, HeadlessOptions, USAGE, parse_args};
 
 /// Frames to wait for a glTF scene to load before giving up.
 const MAX_LOADING_FRAMES: u32 = 2000;
-/// Frames rendered after the scene is ready and before `--frames` starts counting. Bevy needs about three
-/// to upload meshes, specialise pipelines and get a frame through pipelined rendering; the first frames
-/// come out black on lavapipe without this.
-pub const WARM_UP_FRAMES: u32 = 5;
+/// A fresh app draws nothing for a few frames (mesh uploads, pipeline specialisation, pipelined rendering;
+/// more than ten for a glTF scene on lavapipe). `--frames` starts counting once the geometry coverage of
+/// the read-back image has been the same, and not empty, for this many readbacks in a row...
+pub const SETTLE_READBACKS: usize = 3;
+/// ...or after this many frames, whichever comes first (a camera may legitimately see nothing).
+pub const MAX_SETTLE_FRAMES: u32 = 600;
 
 /// What one headless run produced.
 #[derive(Clone, Debug)]
@@ -72,10 +74,24 @@ struct Outcome {
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Phase {
+    /// Assets loading, the scene camera not yet there.
     WaitingForScene,
+    /// GPU methods: frames read back until the geometry coverage stops changing.
+    Settling,
+    /// GPU methods: `--frames` frames after settling; the path tracer: two frames, then trace.
     Rendering,
-    ReadingBack,
     Done,
+}
+
+/// What the per-frame readback observer hands to the driver.
+#[derive(Default)]
+struct Frames {
+    /// Readbacks completed so far.
+    received: u32,
+    /// The newest frame.
+    latest: Option<HdrImage>,
+    /// Covered pixel counts of the newest readbacks.
+    coverage: Vec<usize>,
 }
 
 #[derive(Resource)]
@@ -83,11 +99,13 @@ struct Headless {
     options: HeadlessOptions,
     target: Handle<Image>,
     outcome: Arc<Mutex<Outcome>>,
+    frames: Arc<Mutex<Frames>>,
     phase: Phase,
-    frames_waited: u32,
-    frames_rendered: u32,
+    /// Frames spent in the current phase.
+    phase_frames: u32,
+    /// Readbacks received when `Rendering` began.
+    receipts_at_render: u32,
     render_start: Option<Instant>,
-    readback_start: Option<Instant>,
 }
 
 /// Renders as `options` say and returns the images and the sidecar, without writing anything.
@@ -206,11 +224,11 @@ fn build_app(options: &HeadlessOptions, outcome: Arc<Mutex<Outcome>>) -> App {
         options: options.clone(),
         target,
         outcome,
+        frames: Arc::default(),
         phase: Phase::WaitingForScene,
-        frames_waited: 0,
-        frames_rendered: 0,
+        phase_frames: 0,
+        receipts_at_render: 0,
         render_start: None,
-        readback_start: None,
     })
     .add_systems(Startup, setup)
     .add_systems(Update, (attach_camera, drive).chain());
@@ -240,8 +258,16 @@ fn setup(
 }
 
 /// Gives the scene's camera the headless render target and what the measurements need.
-fn attach_camera(mut commands: Commands, headless: Res<Headless>, cameras: Query<Entity, Added<SceneCamera>>) {
-    for entity in &cameras {
+fn attach_camera(
+    mut commands: Commands,
+    headless: Res<Headless>,
+    mut cameras: Query<(Entity, &mut Projection), Added<SceneCamera>>,
+) {
+    for (entity, mut projection) in &mut cameras {
+        // Bevy recomputes a camera's target size only when the camera is new, its projection changes or
+        // its target image changes, not when the `RenderTarget` component is replaced. A glTF camera has
+        // already been seen with its default (window) target, so flag the projection to force it.
+        projection.set_changed();
         commands.entity(entity).insert((
             RenderTarget::Image(headless.target.clone().into()),
             Hdr,
@@ -266,109 +292,124 @@ fn drive(
     diagnostics: Res<DiagnosticsStore>,
     adapter: Option<Res<RenderAdapterInfo>>,
 ) {
-    let fail = |headless: &Headless, exit: &mut MessageWriter<AppExit>, message: String| {
-        headless.outcome.lock().expect("outcome lock").error = Some(message);
-        exit.write(AppExit::error());
+    let finish = |headless: &mut Headless, exit: &mut MessageWriter<AppExit>, error: Option<String>| {
+        let failed = error.is_some();
+        headless.outcome.lock().expect("outcome lock").error = error;
+        exit.write(if failed { AppExit::error() } else { AppExit::Success });
+        headless.phase = Phase::Done;
     };
+    headless.phase_frames += 1;
+    let is_reference = headless.options.method == HeadlessMethod::Reference;
     match headless.phase {
         Phase::WaitingForScene => match &*status {
             SceneStatus::Ready if !cameras.is_empty() => {
-                headless.phase = Phase::Rendering;
+                headless.phase = if is_reference { Phase::Rendering } else { Phase::Settling };
+                headless.phase_frames = 0;
                 headless.render_start = Some(Instant::now());
-            }
-            SceneStatus::Failed(message) => {
-                fail(&headless, &mut exit, message.clone());
-                headless.phase = Phase::Done;
-            }
-            _ => {
-                headless.frames_waited += 1;
-                if headless.frames_waited > MAX_LOADING_FRAMES {
-                    let message = format!(
-                        "scene {} did not finish loading within {MAX_LOADING_FRAMES} frames",
-                        headless.options.scene.name()
-                    );
-                    fail(&headless, &mut exit, message);
-                    headless.phase = Phase::Done;
+                if !is_reference {
+                    spawn_readback(&mut commands, &headless);
                 }
             }
+            SceneStatus::Failed(message) => {
+                let message = message.clone();
+                finish(&mut headless, &mut exit, Some(message));
+            }
+            _ if headless.phase_frames > MAX_LOADING_FRAMES => {
+                let message = format!(
+                    "scene {} did not finish loading within {MAX_LOADING_FRAMES} frames",
+                    headless.options.scene.name()
+                );
+                finish(&mut headless, &mut exit, Some(message));
+            }
+            _ => {}
         },
+        Phase::Settling => {
+            let frames = headless.frames.lock().expect("frames lock");
+            let recent = &frames.coverage[frames.coverage.len().saturating_sub(SETTLE_READBACKS)..];
+            let settled = recent.len() == SETTLE_READBACKS && recent[0] > 0 && recent.iter().all(|c| *c == recent[0]);
+            let received = frames.received;
+            drop(frames);
+            if settled || headless.phase_frames > MAX_SETTLE_FRAMES {
+                headless.phase = Phase::Rendering;
+                headless.phase_frames = 0;
+                headless.receipts_at_render = received;
+            }
+        }
         Phase::Rendering => {
-            headless.frames_rendered += 1;
             let Ok((transform, projection, exposure)) = cameras.single() else {
-                fail(&headless, &mut exit, "the scene has no camera to render through".into());
-                headless.phase = Phase::Done;
+                finish(&mut headless, &mut exit, Some("the scene has no camera to render through".into()));
                 return;
             };
             let exposure = exposure.copied().unwrap_or_default();
-            if headless.options.method == HeadlessMethod::Reference {
+            if is_reference {
                 // Two frames let the snapshot and the camera's projection catch up with the spawned scene.
-                if headless.frames_rendered < 2 {
+                if headless.phase_frames < 2 {
                     return;
                 }
                 let result = trace_reference(&headless.options, snapshot.as_deref(), transform, projection, &exposure);
-                match result {
+                let error = match result {
                     Ok((image, extras, settings)) => {
+                        let mut map = sidecar(&headless, &exposure, &lights, &diagnostics, adapter.as_deref());
+                        map.insert("reference".into(), settings);
                         let mut outcome = headless.outcome.lock().expect("outcome lock");
                         outcome.image = Some(image);
                         outcome.extra_images = extras;
-                        outcome.sidecar = sidecar(&headless, &exposure, &lights, &diagnostics, adapter.as_deref());
-                        outcome.sidecar.insert("reference".into(), settings);
+                        outcome.sidecar = map;
+                        None
                     }
-                    Err(message) => fail(&headless, &mut exit, message),
-                }
-                exit.write(AppExit::Success);
-                headless.phase = Phase::Done;
+                    Err(message) => Some(message),
+                };
+                finish(&mut headless, &mut exit, error);
                 return;
             }
-            if headless.frames_rendered >= WARM_UP_FRAMES + headless.options.frames {
-                headless.phase = Phase::ReadingBack;
-                headless.readback_start = Some(Instant::now());
-                let outcome = headless.outcome.clone();
-                let size = headless.options.size;
-                let indirect_only = headless.options.indirect_only && headless.options.method == HeadlessMethod::None;
-                commands.spawn(Readback::texture(headless.target.clone())).observe(
-                    move |event: On<ReadbackComplete>, mut commands: Commands| {
-                        let mut outcome = outcome.lock().expect("outcome lock");
-                        if outcome.image.is_none() {
-                            let mut image = decode_rgba32f(&event.data, size.x, size.y);
-                            if indirect_only {
-                                // Bevy's direct light adds no indirect light: keep only the coverage.
-                                for p in &mut image.pixels {
-                                    p[..3].fill(0.0);
-                                }
-                            }
-                            outcome.image = Some(image);
-                        }
-                        commands.entity(event.entity).despawn();
-                    },
-                );
-                let exposure_sidecar = sidecar(&headless, &exposure, &lights, &diagnostics, adapter.as_deref());
-                headless.outcome.lock().expect("outcome lock").sidecar = exposure_sidecar;
+            let mut frames = headless.frames.lock().expect("frames lock");
+            if frames.received < headless.receipts_at_render + headless.options.frames {
+                drop(frames);
+                if headless.render_start.is_some_and(|s| s.elapsed() > Duration::from_secs(600)) {
+                    finish(&mut headless, &mut exit, Some("rendering did not finish within 600 s".into()));
+                }
+                return;
             }
-        }
-        Phase::ReadingBack => {
-            let done = headless.outcome.lock().expect("outcome lock").image.is_some();
-            if done {
-                let frames = headless.frames_rendered;
-                let seconds = headless.render_start.map_or(0.0, |s| s.elapsed().as_secs_f64());
-                let mut outcome = headless.outcome.lock().expect("outcome lock");
-                // GPU spans arrive a frame or two late: read them now, at the end.
-                outcome.sidecar.insert("gpu_ms".into(), gpu_timings(&diagnostics));
-                outcome.sidecar.insert(
-                    "wall_seconds".into(),
-                    json!({ "frames": frames, "warm_up_frames": WARM_UP_FRAMES, "render": seconds,
-                            "per_frame": seconds / frames.max(1) as f64 }),
-                );
-                drop(outcome);
-                exit.write(AppExit::Success);
-                headless.phase = Phase::Done;
-            } else if headless.readback_start.is_some_and(|s| s.elapsed() > Duration::from_secs(120)) {
-                fail(&headless, &mut exit, "the GPU readback did not complete within 120 s".into());
-                headless.phase = Phase::Done;
+            let mut image = frames.latest.take().expect("a readback arrived");
+            drop(frames);
+            if headless.options.indirect_only && headless.options.method == HeadlessMethod::None {
+                // Bevy's direct light adds no indirect light: keep only the coverage.
+                for p in &mut image.pixels {
+                    p[..3].fill(0.0);
+                }
             }
+            let frames = headless.phase_frames;
+            let seconds = headless.render_start.map_or(0.0, |s| s.elapsed().as_secs_f64());
+            let mut map = sidecar(&headless, &exposure, &lights, &diagnostics, adapter.as_deref());
+            map.insert(
+                "wall_seconds".into(),
+                json!({ "frames_after_settling": frames, "render_including_settling": seconds,
+                        "per_frame": seconds / (frames + headless.receipts_at_render).max(1) as f64 }),
+            );
+            let mut outcome = headless.outcome.lock().expect("outcome lock");
+            outcome.image = Some(image);
+            outcome.sidecar = map;
+            drop(outcome);
+            finish(&mut headless, &mut exit, None);
         }
         Phase::Done => {}
     }
+}
+
+/// Reads the render target back every frame into `headless.frames`.
+fn spawn_readback(commands: &mut Commands, headless: &Headless) {
+    let frames = headless.frames.clone();
+    let size = headless.options.size;
+    commands
+        .spawn(Readback::texture(headless.target.clone()))
+        .observe(move |event: On<ReadbackComplete>| {
+            let image = decode_rgba32f(&event.data, size.x, size.y);
+            let covered = image.pixels.iter().filter(|p| p[3] > 0.5).count();
+            let mut frames = frames.lock().expect("frames lock");
+            frames.received += 1;
+            frames.coverage.push(covered);
+            frames.latest = Some(image);
+        });
 }
 
 /// Decodes a padded `Rgba32Float` texture readback.
@@ -404,6 +445,7 @@ fn gpu_timings(diagnostics: &DiagnosticsStore) -> Value {
 
 type LightRow<'a> = (
     Option<&'a Name>,
+    Has<crate::light::GiLight>,
     &'a GlobalTransform,
     Option<&'a DirectionalLight>,
     Option<&'a PointLight>,
@@ -420,23 +462,25 @@ fn sidecar(
     let o = &headless.options;
     let lights: Vec<Value> = lights
         .iter()
-        .filter_map(|(name, transform, directional, point, spot)| {
+        .filter_map(|(name, gi, transform, directional, point, spot)| {
             let name = name.map(|n| n.as_str().to_owned());
             let position = transform.translation().to_array();
             let direction = transform.forward().as_vec3().to_array();
             let rgb = |c: Color| c.to_linear().to_f32_array_no_alpha();
             if let Some(d) = directional {
                 Some(json!({ "name": name, "kind": "directional", "illuminance_lux": d.illuminance,
-                    "color_linear": rgb(d.color), "direction": direction, "shadows": d.shadow_maps_enabled }))
+                    "color_linear": rgb(d.color), "direction": direction, "shadows": d.shadow_maps_enabled,
+                    "gi_light": gi }))
             } else if let Some(s) = spot {
                 Some(json!({ "name": name, "kind": "spot", "intensity_lumens": s.intensity,
                     "intensity_candela": s.intensity / (4.0 * std::f32::consts::PI), "color_linear": rgb(s.color),
                     "position": position, "direction": direction, "range": s.range,
-                    "inner_angle": s.inner_angle, "outer_angle": s.outer_angle, "shadows": s.shadow_maps_enabled }))
+                    "inner_angle": s.inner_angle, "outer_angle": s.outer_angle, "shadows": s.shadow_maps_enabled,
+                    "gi_light": gi }))
             } else {
                 point.map(|p| json!({ "name": name, "kind": "point", "intensity_lumens": p.intensity,
                     "intensity_candela": p.intensity / (4.0 * std::f32::consts::PI), "color_linear": rgb(p.color),
-                    "position": position, "range": p.range, "shadows": p.shadow_maps_enabled }))
+                    "position": position, "range": p.range, "shadows": p.shadow_maps_enabled, "gi_light": gi }))
             }
         })
         .collect();
@@ -445,7 +489,7 @@ fn sidecar(
     map.insert("method".into(), json!(o.method.name()));
     map.insert("size".into(), json!([o.size.x, o.size.y]));
     map.insert("indirect_only".into(), json!(o.indirect_only));
-    map.insert("frames".into(), json!(headless.frames_rendered));
+    map.insert("frames".into(), json!(headless.phase_frames));
     map.insert("options".into(), serde_json::to_value(o).unwrap_or(Value::Null));
     map.insert(
         "exposure".into(),

@@ -45,8 +45,8 @@ pub struct HeadlessOptions {
     pub scene: StandardScene,
     /// Image size in pixels.
     pub size: UVec2,
-    /// Frames rendered before the image is read back (GPU methods), so that temporal smoothing settles.
-    /// They follow [`super::WARM_UP_FRAMES`] frames in which Bevy prepares the scene.
+    /// Frames rendered before the image is kept (GPU methods), so that temporal smoothing settles. They
+    /// are counted once Bevy draws the scene steadily (see [`super::SETTLE_READBACKS`]).
     pub frames: u32,
     /// The EXR to write; a JSON sidecar goes beside it.
     pub out: PathBuf,
@@ -95,7 +95,7 @@ usage: headless [--scene cornell|PATH.glb] [--size WxH] [--frames N] [--out FILE
 
   --scene          a standard scene name or a glTF 2.0 file            (default cornell)
   --size           image size in pixels, 1..=8192 each                  (default 256x256)
-  --frames         frames to render (after 5 warm-up frames) before the readback (default 8)
+  --frames         frames to render once the scene shows, before the image is kept (default 8)
   --out            the linear float EXR to write; FILE.json goes beside it (default out/render.exr)
   --method         none = Bevy's direct light; reference = CPU path tracer (default none)
   --indirect-only  write only the indirect light the method adds

@@ -28,8 +28,11 @@
 //!   first vertex only, so that the direct-only image can be checked against Bevy pixel for pixel. All
 //!   indirect transport stays Lambertian, as the metrics require.
 //!
-//! Not modelled: specular reflection, transmission, emissive textures, alpha masks (all surfaces are
-//! opaque and two-sided), environment maps and ambient light.
+//! * **Culling**: camera rays skip the faces a material's `cull_mode` culls, so the tracer sees what Bevy
+//!   shows; light transport treats every surface as opaque and two-sided.
+//!
+//! Not modelled: specular reflection, transmission, emissive textures, alpha masks, environment maps and
+//! ambient light.
 
 use std::f32::consts::PI;
 use std::time::Instant;
@@ -307,7 +310,8 @@ fn trace_path(
     sample: PathSample,
     sum: &mut PixelSum,
 ) {
-    let Some(mut hit) = scene.intersect(origin, direction, 0.0, f32::INFINITY) else {
+    // The camera sees what Bevy rasterises: culled faces are transparent to camera rays only.
+    let Some(mut hit) = scene.intersect_visible(origin, direction, 0.0, f32::INFINITY) else {
         return;
     };
     sum.hits += 1;

@@ -9,7 +9,9 @@ use bevy::platform::collections::{HashMap, HashSet};
 use bevy::prelude::*;
 use bevy::transform::TransformSystems;
 
-use super::{InputTriangle, SceneSnapshot, SnapshotLight, SnapshotLightEntry, SnapshotMaterial, SnapshotTexture};
+use super::{
+    CulledFace, InputTriangle, SceneSnapshot, SnapshotLight, SnapshotLightEntry, SnapshotMaterial, SnapshotTexture,
+};
 
 /// Maintains the [`SceneSnapshot`] resource when it exists. Added by [`crate::DiffuseGiPlugin`].
 pub struct SceneSnapshotPlugin;
@@ -172,6 +174,11 @@ pub(crate) fn material_from_standard(m: &StandardMaterial, texture: Option<u32>)
         emissive_exposure_weight: if m.emissive.alpha.is_finite() { m.emissive.alpha.clamp(0.0, 1.0) } else { 1.0 },
         base_color_texture: texture,
         perceptual_roughness: if m.perceptual_roughness.is_finite() { m.perceptual_roughness.clamp(0.0, 1.0) } else { 1.0 },
+        culled_face: match m.cull_mode {
+            Some(bevy::render::render_resource::Face::Back) => CulledFace::Back,
+            Some(bevy::render::render_resource::Face::Front) => CulledFace::Front,
+            None => CulledFace::None,
+        },
     }
 }
 

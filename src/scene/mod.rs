@@ -31,6 +31,7 @@ use obvhs_glam::Vec3A;
 
 pub use extract::{SceneSnapshotPlugin, SceneSnapshotSystems, mesh_triangles};
 
+
 /// Per-triangle data the BVH does not hold.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TriangleAttributes {
@@ -61,6 +62,19 @@ pub struct SnapshotMaterial {
     pub base_color_texture: Option<u32>,
     /// Perceptual roughness in `[0, 1]`; only the Burley model of Bevy's direct light uses it.
     pub perceptual_roughness: f32,
+    /// Which face Bevy's rasteriser culls (the material's `cull_mode`). Camera rays of the tracer skip
+    /// culled faces, so the tracer sees what the game shows; light transport treats every surface as
+    /// two-sided, as physical surfaces are.
+    pub culled_face: CulledFace,
+}
+
+/// The face a material's rasteriser culls, by winding (counter-clockwise = front).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum CulledFace {
+    #[default]
+    None,
+    Back,
+    Front,
 }
 
 impl SnapshotMaterial {
@@ -71,6 +85,7 @@ impl SnapshotMaterial {
         emissive_exposure_weight: 1.0,
         base_color_texture: None,
         perceptual_roughness: 1.0,
+        culled_face: CulledFace::None,
     };
 
     /// Emitted radiance in cd/m² for a camera with exposure multiplier `exposure`, matching Bevy's
@@ -437,6 +452,35 @@ impl SceneSnapshot {
         })
     }
 
+    /// Like [`SceneSnapshot::intersect`], but skipping faces the rasteriser culls (see
+    /// [`SnapshotMaterial::culled_face`]): what a camera ray sees in Bevy.
+    pub fn intersect_visible(&self, origin: Vec3, direction: Vec3, t_min: f32, t_max: f32) -> Option<SceneHit> {
+        let bvh = self.bvh.as_ref()?;
+        let ray = bvh_ray(origin, direction, t_min, t_max);
+        let mut hit = RayHit::none();
+        let culled = |id: usize| {
+            let a = &self.attributes[id];
+            let facing = a.geometric_normal.dot(direction);
+            match self.materials[a.material as usize].culled_face {
+                CulledFace::None => false,
+                CulledFace::Back => facing > 0.0,
+                CulledFace::Front => facing < 0.0,
+            }
+        };
+        if !bvh.ray_traverse(ray, &mut hit, |ray, id| {
+            if culled(id) { f32::INFINITY } else { intersect_t(&self.triangles[id], ray) }
+        }) {
+            return None;
+        }
+        let tri = &self.triangles[hit.primitive_id as usize];
+        let (t, u, v) = intersect_triangle(tri, &Ray::new(ray.origin, ray.direction, t_min, f32::INFINITY))?;
+        Some(SceneHit {
+            t,
+            triangle: hit.primitive_id,
+            barycentrics: Vec2::new(u, v),
+        })
+    }
+
     /// Whether anything blocks the open segment `origin + t · direction`, `t ∈ (t_min, t_max)`.
     pub fn occluded(&self, origin: Vec3, direction: Vec3, t_min: f32, t_max: f32) -> bool {
         let Some(bvh) = self.bvh.as_ref() else {
@@ -535,6 +579,20 @@ mod tests {
         let d = Vec3::new(-0.0, -0.0, -1.0);
         assert!(scene.intersect(o, d, 0.0, f32::INFINITY).is_some());
         assert!(scene.occluded(o, d, 0.0, f32::INFINITY));
+    }
+
+    #[test]
+    fn camera_rays_skip_culled_back_faces() {
+        let material = SnapshotMaterial {
+            culled_face: CulledFace::Back,
+            ..SnapshotMaterial::DEFAULT_GREY
+        };
+        let scene = SceneSnapshot::build(unit_quad_z0(), vec![material], vec![], vec![]);
+        // The quad faces +z: seen from the front it is hit, from behind a camera ray passes through...
+        assert!(scene.intersect_visible(Vec3::new(0.2, 0.1, 1.0), Vec3::NEG_Z, 0.0, f32::INFINITY).is_some());
+        assert!(scene.intersect_visible(Vec3::new(0.2, 0.1, -1.0), Vec3::Z, 0.0, f32::INFINITY).is_none());
+        // ...while light transport still sees both sides.
+        assert!(scene.intersect(Vec3::new(0.2, 0.1, -1.0), Vec3::Z, 0.0, f32::INFINITY).is_some());
     }
 
     #[test]

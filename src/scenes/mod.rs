@@ -197,7 +197,7 @@ fn prepare_loaded_gltf(
     roots: Query<&GltfSceneRoot>,
     children: Query<&Children>,
     mut cameras: Query<&mut Camera, With<Camera3d>>,
-    mut lights: Query<LightQuery>,
+    mut lights: Query<LightQuery, Or<(With<DirectionalLight>, With<PointLight>, With<SpotLight>)>>,
     aabbs: Query<(&bevy::camera::primitives::Aabb, &GlobalTransform)>,
 ) {
     let Ok(root) = roots.get(ready.entity) else {

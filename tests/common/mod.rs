@@ -11,14 +11,20 @@ use bevy_diffuse_gi::metrics;
 /// One Bevy app at a time: lavapipe shares two cores, and each app owns a Vulkan device.
 static GPU: Mutex<()> = Mutex::new(());
 
-/// Renders `options` in this process and returns the main image. Panics with the renderer's message.
-pub fn render(options: &HeadlessOptions) -> headless::HeadlessReport {
-    let _guard = GPU.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+/// Holds the GPU for one render (and selects Vulkan unless `WGPU_BACKEND` says otherwise).
+pub fn render_lock() -> std::sync::MutexGuard<'static, ()> {
+    let guard = GPU.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
     if std::env::var_os("WGPU_BACKEND").is_none() {
         // Lavapipe is a Vulkan driver; do not let wgpu wander to GL.
-        // SAFETY: set before any render thread of this test binary exists (the lock above is held).
+        // SAFETY: set while holding the lock, before this test starts a render thread.
         unsafe { std::env::set_var("WGPU_BACKEND", "vulkan") };
     }
+    guard
+}
+
+/// Renders `options` in this process and returns the report. Panics with the renderer's message.
+pub fn render(options: &HeadlessOptions) -> headless::HeadlessReport {
+    let _guard = render_lock();
     headless::run(options).unwrap_or_else(|e| panic!("headless render failed: {e}"))
 }
 

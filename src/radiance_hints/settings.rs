@@ -1,0 +1,309 @@
+//! [`RadianceHintsVolume`]: where Radiance Hints apply and how they are computed.
+
+use bevy::math::UVec3;
+use bevy::prelude::*;
+
+use crate::sh::ShOrder;
+
+/// A box of space lit by Radiance Hints (Papaioannou 2011): a grid of radiance probes ("hints") that sample
+/// the reflective shadow maps of every [`GiLight`](crate::light::GiLight), exchange light among themselves
+/// for extra bounces, and light the surfaces inside the box.
+///
+/// The box is the unit cube centred on the entity, transformed by its [`Transform`]: use the scale to give
+/// its size in metres (`Transform::from_scale(Vec3::new(20.0, 6.0, 20.0))`), as for Bevy's
+/// `IrradianceVolume`. Hints sit at the centres of the grid cells. Surfaces outside every volume receive no
+/// bounced light. Rotation is honoured.
+///
+/// Invalid values (zero or huge sizes, NaN, absurd sample counts) are clamped to the documented range with
+/// one warning per field; see [`RadianceHintsVolume::sanitized`].
+///
+/// Memory per volume: `cells × (4 SH blocks + 3) × 16 B` with SH order 2 and `cells × (7 + 3) × 16 B` with
+/// order 3 (two increment buffers, a running sum, the displayed result, distances, albedo) — 16³ order 2:
+/// 0.9 MiB.
+#[derive(Component, Reflect, Clone, Debug, PartialEq)]
+#[reflect(Component, Default, Clone)]
+#[require(Transform, Visibility)]
+#[doc(alias = "RH")]
+#[doc(alias = "RadianceHints")]
+pub struct RadianceHintsVolume {
+    /// Hints along x, y and z of the box.
+    ///
+    /// Default 16×16×16 ([`MEDIUM`](Self::MEDIUM)). Valid range 2–128 per axis and at most 2¹⁸ hints in all.
+    /// Cost: injection and each bounce are O(hints); memory is O(hints). Finer grids resolve smaller
+    /// features and leak less; the cell should be smaller than the rooms it lights.
+    pub resolution: UVec3,
+    /// Spherical-harmonics order of each hint's radiance: [`ShOrder::Two`] (4 coefficients per channel) or
+    /// [`ShOrder::Three`] (9).
+    ///
+    /// Default `Two`. Cost: order 3 writes and reads 2.25× the data in every pass. On `cornell` it is not
+    /// more accurate (see `docs/radiance_hints.md`).
+    pub sh_order: ShOrder,
+    /// RSM samples per hint, `N_s` of the paper (Eq. 4), shared among the GI lights in proportion to their
+    /// power.
+    ///
+    /// Default 64. Valid range 1–1024. Cost: injection is O(hints × samples). Fewer samples are noisier
+    /// (temporal accumulation averages it over a few frames); beyond 64 the error is bias, not noise.
+    pub rsm_samples: u32,
+    /// Fraction of a *directional* light's RSM area sampled around each hint's projection, `c_RSM` of §4.
+    ///
+    /// Default 1.0 (the whole RSM). Valid range 0.01–1. The paper suggests 0.05–0.15 for sunlight over large
+    /// areas, where bounced light travels only a few metres. Spot and point lights always sample their whole
+    /// RSM: a hint beside or above such a light has no meaningful projection into it. No cost difference.
+    pub rsm_coverage: f32,
+    /// How far each RSM sample's receiving point is jittered inside the hint's cell, as a fraction of the
+    /// cell (§4: samples "drawn from jittered positions inside the cell").
+    ///
+    /// Default 1.0 (the whole cell). Valid range 0–1. Larger values smooth the field between hints. Free.
+    pub jitter: f32,
+    /// Extra diffuse bounces after the first, exchanged between hints (§6–7, Eq. 8–10).
+    ///
+    /// Default 2. Valid range 0–8. Cost: one pass over all hints per bounce, each reading
+    /// [`secondary_samples`](Self::secondary_samples) hints. Bounces stop early once one adds less than
+    /// [`bounce_threshold`](Self::bounce_threshold) of the light so far.
+    pub extra_bounces: u32,
+    /// Hints sampled per hint and per extra bounce, `N_b` of Eq. 8.
+    ///
+    /// Default 24. Valid range 1–256. Cost: each bounce is O(hints × samples).
+    pub secondary_samples: u32,
+    /// Range of the secondary-bounce exchange and the distance normaliser of the confidence (Eq. 9) and
+    /// visibility (Eq. 11) terms, `r_max`, in metres. `0` picks it from the volume: half its diagonal, at
+    /// least two cell diagonals.
+    ///
+    /// Default 0 (automatic). Valid range 0 or 0.01–10 000. A fixed small `r_max` starves large rooms of
+    /// bounced light; a large one leaks more. Free.
+    pub r_max: f32,
+    /// Stop extra bounces once one adds less than this fraction of the light gathered so far.
+    ///
+    /// Default 0.01. Valid range 0–1 (0 runs every bounce). Saves the remaining bounce passes.
+    pub bounce_threshold: f32,
+    /// Weight of the newest frame when the hints are blended over time (§9.1): `1` disables smoothing.
+    ///
+    /// Default 0.5 (the paper's). Valid range 0.05–1. After the lights and scene stop changing, the volume
+    /// keeps updating for a few frames until the blend has converged, then stops. Free.
+    pub temporal_blend: f32,
+    /// Reflect secondary bounces with the colour of nearby surfaces (§6's optional albedo volume) instead
+    /// of white (Eq. 10).
+    ///
+    /// Default `true`. The albedo volume is voxelised on the CPU from the scene snapshot when geometry
+    /// changes (O(triangles)), and read once per secondary sample.
+    pub albedo_volume: bool,
+    /// Attenuate each RSM sample's light by the camera depth buffer along its path to the hint (§8).
+    /// View-dependent; `None` turns it off.
+    ///
+    /// Default `None`. Cost: O(hints × samples × steps) depth reads, and the volume is recomputed
+    /// whenever the camera moves.
+    pub depth_occlusion: Option<DepthOcclusion>,
+    /// Hint samples per shaded pixel, `N_RH` of Eq. 6: the first on the normal, the rest on a cone 80° from
+    /// it, rotated per pixel (§5).
+    ///
+    /// Default 4. Valid range 1–16. Cost: the reconstruction is O(pixels × samples).
+    pub reconstruction_samples: u32,
+    /// Multiplier on the bounced light, for art direction. 1 is physically based.
+    ///
+    /// Default 1. Valid range 0–100. Free.
+    pub intensity: f32,
+}
+
+/// The optional camera-depth occlusion of RSM samples (paper §8).
+#[derive(Reflect, Clone, Copy, Debug, PartialEq)]
+#[reflect(Clone, Default)]
+pub struct DepthOcclusion {
+    /// Points tested along each RSM-sample-to-hint segment.
+    ///
+    /// Default 4 (the paper uses 3–8). Valid range 1–16.
+    pub samples: u32,
+    /// Fraction of the sample's light removed for each tested point found behind the camera's depth
+    /// buffer (the attenuation is `(1 − strength)^hidden`).
+    ///
+    /// Default 0.5. Valid range 0–1.
+    pub strength: f32,
+}
+
+impl Default for DepthOcclusion {
+    fn default() -> Self {
+        Self {
+            samples: 4,
+            strength: 0.5,
+        }
+    }
+}
+
+impl RadianceHintsVolume {
+    /// 8³ hints, SH order 2, 32 RSM samples, one extra bounce: the cheapest useful setting.
+    pub const LOW: Self = Self {
+        resolution: UVec3::splat(8),
+        sh_order: ShOrder::Two,
+        rsm_samples: 32,
+        rsm_coverage: 1.0,
+        jitter: 1.0,
+        extra_bounces: 1,
+        secondary_samples: 16,
+        r_max: 0.0,
+        bounce_threshold: 0.01,
+        temporal_blend: 0.5,
+        albedo_volume: true,
+        depth_occlusion: None,
+        reconstruction_samples: 4,
+        intensity: 1.0,
+    };
+
+    /// 16³ hints, SH order 2, 64 RSM samples, two extra bounces. The default.
+    pub const MEDIUM: Self = Self {
+        resolution: UVec3::splat(16),
+        rsm_samples: 64,
+        extra_bounces: 2,
+        secondary_samples: 24,
+        ..Self::LOW
+    };
+
+    /// 24³ hints, SH order 2, 96 RSM samples, three extra bounces, 32 secondary samples.
+    pub const HIGH: Self = Self {
+        resolution: UVec3::splat(24),
+        rsm_samples: 96,
+        extra_bounces: 3,
+        secondary_samples: 32,
+        ..Self::MEDIUM
+    };
+
+    /// Most hints accepted in one volume.
+    pub const MAX_HINTS: u32 = 1 << 18;
+
+    /// A copy with every field inside its documented range, and the names of the fields that were
+    /// changed (for one warning each).
+    pub fn sanitized(&self) -> (Self, Vec<&'static str>) {
+        let mut s = self.clone();
+        let mut changed = Vec::new();
+        let mut fix_u32 = |v: &mut u32, lo: u32, hi: u32, name: &'static str| {
+            let c = (*v).clamp(lo, hi);
+            if c != *v {
+                *v = c;
+                changed.push(name);
+            }
+        };
+        let mut r = s.resolution;
+        fix_u32(&mut r.x, 2, 128, "resolution");
+        fix_u32(&mut r.y, 2, 128, "resolution");
+        fix_u32(&mut r.z, 2, 128, "resolution");
+        while r.x * r.y * r.z > Self::MAX_HINTS {
+            r = (r.as_vec3() * 0.9).as_uvec3().max(UVec3::splat(2));
+            changed.push("resolution");
+        }
+        s.resolution = r;
+        fix_u32(&mut s.rsm_samples, 1, 1024, "rsm_samples");
+        fix_u32(&mut s.extra_bounces, 0, 8, "extra_bounces");
+        fix_u32(&mut s.secondary_samples, 1, 256, "secondary_samples");
+        fix_u32(&mut s.reconstruction_samples, 1, 16, "reconstruction_samples");
+        let mut fix_f32 = |v: &mut f32, lo: f32, hi: f32, default: f32, name: &'static str| {
+            let c = if v.is_nan() { default } else { v.clamp(lo, hi) };
+            if c != *v {
+                *v = c;
+                changed.push(name);
+            }
+        };
+        fix_f32(&mut s.rsm_coverage, 0.01, 1.0, 1.0, "rsm_coverage");
+        fix_f32(&mut s.jitter, 0.0, 1.0, 1.0, "jitter");
+        fix_f32(&mut s.bounce_threshold, 0.0, 1.0, 0.01, "bounce_threshold");
+        fix_f32(&mut s.temporal_blend, 0.05, 1.0, 0.5, "temporal_blend");
+        fix_f32(&mut s.intensity, 0.0, 100.0, 1.0, "intensity");
+        if s.r_max != 0.0 {
+            fix_f32(&mut s.r_max, 0.01, 10_000.0, 0.0, "r_max");
+        }
+        if let Some(o) = &mut s.depth_occlusion {
+            fix_u32(&mut o.samples, 1, 16, "depth_occlusion.samples");
+            fix_f32(&mut o.strength, 0.0, 1.0, 0.5, "depth_occlusion.strength");
+        }
+        changed.dedup();
+        (s, changed)
+    }
+
+    /// Hints in the grid.
+    pub fn hint_count(&self) -> u32 {
+        self.resolution.x * self.resolution.y * self.resolution.z
+    }
+
+    /// `r_max` in metres for a volume of size `size` (metres).
+    pub fn effective_r_max(&self, size: Vec3) -> f32 {
+        if self.r_max > 0.0 {
+            return self.r_max;
+        }
+        let cell = size / self.resolution.max(UVec3::ONE).as_vec3();
+        (0.5 * size.length()).max(2.0 * cell.length()).max(1e-3)
+    }
+
+    /// GPU memory of the volume's buffers in bytes.
+    pub fn memory_bytes(&self) -> u64 {
+        let blocks = crate::radiance_hints::sh_blocks(self.sh_order) as u64;
+        // Two increment buffers, a running sum and the displayed result, plus distances and albedo.
+        self.hint_count() as u64 * (4 * blocks + 2) * 16
+    }
+}
+
+impl Default for RadianceHintsVolume {
+    fn default() -> Self {
+        Self::MEDIUM
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn presets_are_valid_and_ordered() {
+        for preset in [RadianceHintsVolume::LOW, RadianceHintsVolume::MEDIUM, RadianceHintsVolume::HIGH] {
+            let (s, changed) = preset.sanitized();
+            assert!(changed.is_empty(), "{changed:?}");
+            assert_eq!(s, preset);
+        }
+        assert!(RadianceHintsVolume::LOW.hint_count() < RadianceHintsVolume::MEDIUM.hint_count());
+        assert!(RadianceHintsVolume::MEDIUM.hint_count() < RadianceHintsVolume::HIGH.hint_count());
+        assert_eq!(RadianceHintsVolume::default(), RadianceHintsVolume::MEDIUM);
+    }
+
+    #[test]
+    fn invalid_values_are_clamped_and_named() {
+        let bad = RadianceHintsVolume {
+            resolution: UVec3::new(0, 100_000, 3),
+            rsm_samples: 0,
+            rsm_coverage: f32::NAN,
+            jitter: -1.0,
+            extra_bounces: 1000,
+            secondary_samples: 0,
+            r_max: -5.0,
+            temporal_blend: 0.0,
+            intensity: f32::INFINITY,
+            depth_occlusion: Some(DepthOcclusion {
+                samples: 0,
+                strength: f32::NAN,
+            }),
+            ..default()
+        };
+        let (s, changed) = bad.sanitized();
+        assert!(s.resolution.min_element() >= 2 && s.hint_count() <= RadianceHintsVolume::MAX_HINTS);
+        assert_eq!(s.rsm_samples, 1);
+        assert_eq!(s.rsm_coverage, 1.0);
+        assert_eq!(s.jitter, 0.0);
+        assert_eq!(s.extra_bounces, 8);
+        assert_eq!(s.secondary_samples, 1);
+        assert_eq!(s.r_max, 0.01);
+        assert_eq!(s.temporal_blend, 0.05);
+        assert_eq!(s.intensity, 100.0);
+        assert_eq!(s.depth_occlusion, Some(DepthOcclusion { samples: 1, strength: 0.5 }));
+        for name in ["resolution", "rsm_samples", "rsm_coverage", "jitter", "extra_bounces", "r_max", "intensity"] {
+            assert!(changed.contains(&name), "{name} missing from {changed:?}");
+        }
+        // Clamping is idempotent.
+        assert!(s.sanitized().1.is_empty());
+    }
+
+    #[test]
+    fn automatic_r_max_scales_with_the_volume() {
+        let v = RadianceHintsVolume::MEDIUM;
+        let small = v.effective_r_max(Vec3::splat(2.0));
+        let large = v.effective_r_max(Vec3::new(20.0, 6.0, 20.0));
+        assert!((small - 3f32.sqrt()).abs() < 1e-5);
+        assert!(large > 10.0 * small * 0.8);
+        let fixed = RadianceHintsVolume { r_max: 1.5, ..v };
+        assert_eq!(fixed.effective_r_max(Vec3::splat(100.0)), 1.5);
+    }
+}

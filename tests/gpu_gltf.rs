@@ -1,0 +1,85 @@
+//! glTF scenes through Bevy's loader: lights get shadows and a `GiLight`, Bevy and the path tracer agree
+//! on the direct light, and unloadable files fail with a message instead of a panic.
+#![cfg(feature = "gpu_tests")]
+
+mod common;
+
+use std::path::PathBuf;
+
+use bevy_diffuse_gi::headless::{self, HeadlessMethod, HeadlessOptions};
+use bevy_diffuse_gi::metrics;
+use bevy_diffuse_gi::scenes::StandardScene;
+use common::{check, render};
+
+fn asset(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/assets").join(name)
+}
+
+fn room() -> StandardScene {
+    StandardScene::Gltf(asset("test_room.gltf"))
+}
+
+#[test]
+fn gltf_lights_cast_shadows_and_bounce() {
+    let report = render(&HeadlessOptions {
+        scene: room(),
+        frames: 1,
+        ..Default::default()
+    });
+    let lights = report.sidecar["lights"].as_array().expect("lights in the sidecar");
+    assert_eq!(lights.len(), 2, "{lights:?}");
+    for light in lights {
+        assert_eq!(light["shadows"], true, "{light}");
+        assert_eq!(light["gi_light"], true, "{light}");
+    }
+    // KHR_lights_punctual gives candela; Bevy stores 4π × cd lumens.
+    let spot = lights.iter().find(|l| l["kind"] == "spot").expect("a spot light");
+    assert!((spot["intensity_candela"].as_f64().unwrap() - 60.0).abs() < 1e-3);
+    let test = "gltf_lights_cast_shadows_and_bounce";
+    let image = &report.image;
+    let covered = (0..image.pixels.len()).filter(|&i| image.covered(i)).count();
+    check(test, covered > image.pixels.len() / 2, image, None, format!("only {covered} pixels see the room"));
+    let floor = image.region_mean(60, 200, 120, 240).expect("floor in view");
+    check(test, floor[0] > 0.5, image, None, format!("lit floor is dark: {floor:?}"));
+}
+
+#[test]
+fn gltf_direct_light_matches_the_path_tracer() {
+    let test = "gltf_direct_light_matches_the_path_tracer";
+    let bevy = render(&HeadlessOptions {
+        scene: room(),
+        frames: 1,
+        ..Default::default()
+    })
+    .image;
+    let traced = render(&HeadlessOptions {
+        scene: room(),
+        method: HeadlessMethod::Reference,
+        spp: 1,
+        max_bounces: Some(1),
+        burley_direct: true,
+        pixel_centers: true,
+        ..Default::default()
+    });
+    let (_, traced) = traced.extra_images.into_iter().find(|(n, _)| *n == "direct").expect("direct image");
+    let m = metrics::compare(&bevy, &traced).expect("comparable");
+    // Measured on lavapipe: block relative RMSE 0.047, energy ratio 1.026 (a spot and a point light).
+    check(
+        test,
+        (0.95..=1.05).contains(&m.energy_ratio) && m.block_relative_rmse <= 0.12,
+        &bevy,
+        Some(&traced),
+        format!("energy ratio {:.4}, block rel. RMSE {:.4}", m.energy_ratio, m.block_relative_rmse),
+    );
+}
+
+#[test]
+fn unloadable_gltf_is_an_error_not_a_panic() {
+    let options = HeadlessOptions {
+        scene: StandardScene::Gltf(asset("corrupt.glb")),
+        ..Default::default()
+    };
+    let _guard = common::render_lock();
+    let error = headless::run(&options).expect_err("a corrupt file must not render");
+    assert!(error.contains("cannot load glTF") && error.contains("corrupt.glb"), "{error}");
+}
