@@ -287,6 +287,32 @@ impl PathSample {
     }
 }
 
+/// Radiance arriving at `origin` from `direction` (unit), split by reflecting vertices exactly as the
+/// images are (`[emission, direct, indirect]`, no exposure), averaged over `samples` paths with seed
+/// `seed`. Used to path-trace the radiance field of the GI methods' probes.
+pub fn incident_radiance(
+    scene: &SceneSnapshot,
+    origin: Vec3,
+    direction: Vec3,
+    settings: &ReferenceSettings,
+    samples: u32,
+    stream: u64,
+) -> [Vec3; 3] {
+    let max_reflecting = settings
+        .max_bounces
+        .map_or(settings.max_depth, |b| (b + 1).min(settings.max_depth))
+        .max(1);
+    let scale = scene.bounds().map_or(1.0, |(lo, hi)| lo.abs().max(hi.abs()).max_element().max(1.0));
+    let mut sum = PixelSum::default();
+    let stream = SobolStream::new(settings.seed, stream);
+    for index in 0..samples.max(1) {
+        let sample = PathSample { stream, index };
+        trace_path_from(scene, origin, direction, settings, max_reflecting, 1.0, 1e-4 * scale, sample, &mut sum, false);
+    }
+    let n = samples.max(1) as f32;
+    [sum.emission / n, sum.direct / n, sum.indirect / n]
+}
+
 /// Normals at a hit facing the side the ray came from.
 fn facing_normals(surface: &SurfacePoint, incoming: Vec3) -> (Vec3, Vec3) {
     let ng = if surface.geometric_normal.dot(incoming) > 0.0 {
@@ -310,8 +336,29 @@ fn trace_path(
     sample: PathSample,
     sum: &mut PixelSum,
 ) {
+    trace_path_from(scene, origin, direction, settings, max_reflecting, exposure, epsilon, sample, sum, true);
+}
+
+#[expect(clippy::too_many_arguments, reason = "the inner loop of the tracer, kept free of allocations")]
+fn trace_path_from(
+    scene: &SceneSnapshot,
+    origin: Vec3,
+    direction: Vec3,
+    settings: &ReferenceSettings,
+    max_reflecting: u32,
+    exposure: f32,
+    epsilon: f32,
+    sample: PathSample,
+    sum: &mut PixelSum,
+    camera_ray: bool,
+) {
     // The camera sees what Bevy rasterises: culled faces are transparent to camera rays only.
-    let Some(mut hit) = scene.intersect_visible(origin, direction, 0.0, f32::INFINITY) else {
+    let first = if camera_ray {
+        scene.intersect_visible(origin, direction, 0.0, f32::INFINITY)
+    } else {
+        scene.intersect(origin, direction, 0.0, f32::INFINITY)
+    };
+    let Some(mut hit) = first else {
         return;
     };
     sum.hits += 1;

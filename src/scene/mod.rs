@@ -17,7 +17,7 @@
 //! Triangles are stored in BVH order (obvhs' CWBVH, an 8-wide compressed BVH built with PLOC), with a
 //! parallel array of [`TriangleAttributes`]. Positions are in world space, metres.
 
-mod extract;
+pub(crate) mod extract;
 
 use bevy::math::{Vec2, Vec3};
 use bevy::prelude::{Entity, Resource};
@@ -491,6 +491,20 @@ impl SceneSnapshot {
         }
         let ray = bvh_ray(origin, direction, t_min, t_max);
         !bvh.ray_traverse_miss(ray, |ray, id| intersect_t(&self.triangles[id], ray))
+    }
+
+    /// The mean diffuse albedo of triangle `i`: its material's diffuse colour times the mean of its
+    /// base-colour texture at the corners, edge midpoints and centroid. The GI methods' low-frequency
+    /// inputs (RSM albedo, albedo volumes) use this per-triangle colour.
+    pub fn triangle_albedo(&self, i: u32) -> Vec3 {
+        let attributes = &self.attributes[i as usize];
+        let material = &self.materials[attributes.material as usize];
+        let Some(texture) = material.base_color_texture.and_then(|t| self.textures.get(t as usize)) else {
+            return material.diffuse;
+        };
+        let [a, b, c] = attributes.uvs;
+        let points = [a, b, c, (a + b) * 0.5, (b + c) * 0.5, (c + a) * 0.5, (a + b + c) / 3.0];
+        material.diffuse * (points.iter().map(|uv| texture.sample(*uv)).sum::<Vec3>() / points.len() as f32)
     }
 
     /// Surface data at a hit: position, unit shading normal, unit geometric normal, diffuse reflectance

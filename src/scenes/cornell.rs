@@ -126,9 +126,63 @@ pub fn spawn_cornell(
     ));
 }
 
+/// The scene as a [`SceneSnapshot`](crate::scene::SceneSnapshot), built on the CPU from the same meshes,
+/// materials and light as [`spawn_cornell`] (for tests and the CPU models of the GI methods).
+pub fn cornell_snapshot() -> crate::scene::SceneSnapshot {
+    use crate::scene::{SceneSnapshot, SnapshotLight, SnapshotLightEntry, SnapshotMaterial, extract::material_from_standard, mesh_triangles};
+    let materials: Vec<SnapshotMaterial> =
+        [WHITE, RED, GREEN].iter().map(|c| material_from_standard(&diffuse_material(*c), None)).collect();
+    let mut triangles = Vec::new();
+    let walls = [
+        (Vec3::Y, Vec3::new(0.0, -1.0, 0.0), 0),
+        (Vec3::NEG_Y, Vec3::new(0.0, 1.0, 0.0), 0),
+        (Vec3::Z, Vec3::new(0.0, 0.0, -1.0), 0),
+        (Vec3::X, Vec3::new(-1.0, 0.0, 0.0), 1),
+        (Vec3::NEG_X, Vec3::new(1.0, 0.0, 0.0), 2),
+    ];
+    for (normal, position, material) in walls {
+        let mesh = Mesh::from(Plane3d::new(normal, Vec2::ONE));
+        let transform = GlobalTransform::from(Transform::from_translation(position));
+        triangles.extend(mesh_triangles(&mesh, &transform, material).expect("CPU mesh"));
+    }
+    let cube = Mesh::from(Cuboid::new(2.0, 2.0, 2.0));
+    for rows in [SMALL_BOX, LARGE_BOX] {
+        let transform = GlobalTransform::from(transform_from_rows(rows));
+        triangles.extend(mesh_triangles(&cube, &transform, 0).expect("CPU mesh"));
+    }
+    let cone = LIGHT_CONE_DEGREES.to_radians();
+    let (spot_scale, spot_offset) = SnapshotLight::spot_scale_offset(cone, cone);
+    let light = SnapshotLightEntry {
+        entity: Entity::PLACEHOLDER,
+        light: SnapshotLight::Spot {
+            position: LIGHT_POSITION,
+            direction: Vec3::NEG_Y,
+            intensity: Vec3::splat(LIGHT_CANDELA),
+            // Bevy's default spot range, 20 m.
+            inverse_range_squared: 1.0 / 400.0,
+            spot_scale,
+            spot_offset,
+        },
+        shadows_enabled: true,
+    };
+    SceneSnapshot::build(triangles, materials, vec![], vec![light])
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn cpu_snapshot_has_the_scene() {
+        let s = cornell_snapshot();
+        // Five quads and two boxes.
+        assert_eq!(s.triangle_count(), 5 * 2 + 2 * 12);
+        let (lo, hi) = s.bounds().unwrap();
+        // The large box's base sits 1 cm below the floor (y = −0.4 − 0.61), as in the Mitsuba layout.
+        assert!((lo - Vec3::new(-1.0, -1.01, -1.0)).abs().max_element() < 1e-5, "{lo}");
+        assert!((hi - Vec3::ONE).abs().max_element() < 1e-5, "{hi}");
+        assert_eq!(s.lights.len(), 1);
+    }
 
     #[test]
     fn box_matrices_decompose_exactly() {

@@ -11,7 +11,7 @@
 //! Add [`StandardScenesPlugin`], call [`spawn_standard_scene`], and wait for [`SceneStatus::Ready`]. The
 //! camera to render through carries [`SceneCamera`]; apps add their render target to it.
 
-mod cornell;
+pub mod cornell;
 
 use std::path::{Path, PathBuf};
 
@@ -24,7 +24,7 @@ use bevy::world_serialization::{WorldAssetRoot, WorldInstanceReady};
 
 use crate::light::GiLight;
 
-pub use cornell::{CORNELL_EV100, spawn_cornell};
+pub use cornell::{CORNELL_EV100, cornell_snapshot, spawn_cornell};
 
 /// A scene the crate knows how to build.
 #[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
