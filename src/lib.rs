@@ -1,7 +1,7 @@
 //! # bevy_diffuse_gi
 //!
 //! Dynamic diffuse global illumination for Bevy: bounced light that updates every frame, with no baking
-//! and no ray-tracing hardware.
+//! and no ray-tracing hardware, measured against a path-traced ground truth.
 //!
 //! ```no_run
 //! use bevy::prelude::*;
@@ -9,40 +9,92 @@
 //!
 //! App::new()
 //!     .add_plugins((DefaultPlugins, DiffuseGiPlugin::default()))
+//!     .add_systems(Startup, |mut commands: Commands| {
+//!         // Per camera: the method and the debug view.
+//!         commands.spawn((Camera3d::default(), DiffuseGi::default()));
+//!         // Per light: its light bounces.
+//!         commands.spawn((SpotLight { shadow_maps_enabled: true, ..default() }, GiLight::default()));
+//!         // Where Radiance Hints apply: a 10 m cube.
+//!         commands.spawn((RadianceHintsVolume::MEDIUM, Transform::from_scale(Vec3::splat(10.0))));
+//!     })
 //!     .run();
 //! ```
 //!
-//! Besides the GI methods, the crate carries what they are measured with: a CPU scene snapshot
-//! ([`scene`]), a path-traced ground truth ([`reference`]), the error metrics of `shared/METRICS.md`
-//! ([`metrics`]), the standard scenes ([`scenes`]) and a headless renderer ([`headless`]).
+//! Modules: [`rsm`] (reflective shadow maps), [`radiance_hints`] (the method), [`composite`] (adding the
+//! light to the image, debug views), [`camera`] and [`light`] (the user's components), [`ui`] (the egui
+//! panel, feature `egui`). The measuring instruments: [`scene`] (CPU snapshot of the world), [`reference`]
+//! (path-traced ground truth), [`metrics`] (errors), [`scenes`] (standard scenes), [`headless`].
 
+pub mod camera;
+pub mod composite;
 pub mod hdr_image;
 pub mod headless;
 pub mod light;
 pub mod metrics;
+pub mod radiance_hints;
 #[cfg(feature = "reference")]
 pub mod reference;
+pub mod rsm;
 pub mod sampling;
 pub mod scene;
 pub mod scenes;
 pub mod sh;
+#[cfg(feature = "egui")]
+pub mod ui;
 
+use bevy::pbr::DefaultOpaqueRendererMethod;
 use bevy::prelude::*;
+use bevy::shader::Shader;
 
 /// Everything a user needs in scope.
 pub mod prelude {
     pub use crate::DiffuseGiPlugin;
+    pub use crate::camera::{DiffuseGi, GiDebugView, GiMethod, GiOutput};
     pub use crate::light::GiLight;
+    pub use crate::radiance_hints::{DepthOcclusion, RadianceHintsVolume};
+    pub use crate::sh::ShOrder;
+    #[cfg(feature = "egui")]
+    pub use crate::ui::DiffuseGiInspectorPlugin;
 }
 
-/// The plugin: adds every GI method's render passes and the scene snapshot. Anything without the crate's
-/// components costs nothing.
-#[derive(Default)]
-pub struct DiffuseGiPlugin;
+/// The plugin: the GI methods' render passes and the scene snapshot they read. Anything without the
+/// crate's components ([`camera::DiffuseGi`], [`light::GiLight`], a method's volume) costs nothing.
+///
+/// A GPU that lacks what a method needs disables that method with one warning naming the limit; the app
+/// runs on.
+pub struct DiffuseGiPlugin {
+    /// Make deferred rendering the default for `StandardMaterial`s (inserts
+    /// `DefaultOpaqueRendererMethod::deferred()`). The per-pixel reconstruction reads albedo from the
+    /// G-buffer, which only deferred materials write. Default `true`; forward-rendered apps set `false` and
+    /// use [`camera::GiOutput::IrradianceVolume`].
+    pub deferred_by_default: bool,
+}
+
+impl Default for DiffuseGiPlugin {
+    fn default() -> Self {
+        Self { deferred_by_default: true }
+    }
+}
 
 impl Plugin for DiffuseGiPlugin {
     fn build(&self, app: &mut App) {
-        app.register_type::<light::GiLight>()
-            .add_plugins(scene::SceneSnapshotPlugin);
+        if self.deferred_by_default {
+            app.insert_resource(DefaultOpaqueRendererMethod::deferred());
+        }
+        app.register_type::<light::GiLight>().add_plugins((
+            scene::SceneSnapshotPlugin,
+            rsm::RsmPlugin,
+            radiance_hints::RadianceHintsPlugin,
+            composite::CompositePlugin,
+        ));
     }
+}
+
+/// Registers a WGSL file of `shaders/` as a [`Shader`] asset (import libraries become importable by their
+/// `#define_import_path`). Returns a default handle in apps without a renderer.
+pub(crate) fn add_shader(app: &mut App, path: &'static str, source: &'static str) -> Handle<Shader> {
+    let Some(mut shaders) = app.world_mut().get_resource_mut::<Assets<Shader>>() else {
+        return Handle::default();
+    };
+    shaders.add(Shader::from_wgsl(source, format!("bevy_diffuse_gi/{path}")))
 }

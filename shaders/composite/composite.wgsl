@@ -1,0 +1,156 @@
+// Adds a GI method's indirect light to the camera's HDR target, or shows a debug view instead.
+//
+// The GI target holds Σ w·E/π (rgb) and Σ w (a) over the volumes covering each pixel (see the methods'
+// reconstruction passes). The light added is `albedo × E/π × exposure`, with the albedo decoded from Bevy's
+// G-buffer (base colour stored gamma-2.2, times 1 − metallic): the indirect-only image of the metrics.
+// At half resolution each pixel takes the four nearest GI texels, weighted bilinearly and by how similar
+// their depth and normal are to its own (joint bilateral upsampling).
+
+#import bevy_core_pipeline::fullscreen_vertex_shader::FullscreenVertexOutput
+#import bevy_render::view::View
+#import bevy_pbr::pbr_deferred_types::{unpack_24bit_normal, unpack_unorm4x8_, unpack_flags, DEFERRED_FLAGS_UNLIT_BIT}
+#import bevy_pbr::utils::octahedral_decode
+#if DEBUG_VIEW == 3
+#import bevy_diffuse_gi::rh_types::{PI, world_to_local, cell_index, sh_irradiance}
+#import bevy_diffuse_gi::rh_sampling::{volume, load_sh}
+#endif
+
+@group(0) @binding(0) var<uniform> view: View;
+@group(0) @binding(1) var depth_texture: texture_depth_2d;
+@group(0) @binding(2) var gbuffer: texture_2d<u32>;
+@group(0) @binding(3) var gi_texture: texture_2d<f32>;
+
+#if DEBUG_VIEW >= 4
+struct RsmDebug {
+    first_layer: u32,
+    faces: u32,
+    resolution: u32,
+    flux_display_scale: f32,
+}
+@group(1) @binding(0) var rsm_position: texture_2d_array<f32>;
+@group(1) @binding(1) var rsm_normal: texture_2d_array<f32>;
+@group(1) @binding(2) var rsm_flux: texture_2d_array<f32>;
+@group(1) @binding(3) var<uniform> rsm_debug: RsmDebug;
+#endif
+
+// 0 none (add), 1 indirect only, 2 irradiance, 3 hint grid, 4 RSM flux, 5 RSM normal, 6 RSM position.
+const DEBUG_VIEW: u32 = #{DEBUG_VIEW}u;
+const GI_SCALE: i32 = #{GI_SCALE};
+
+fn view_depth(depth: f32) -> f32 {
+    let p = view.view_from_clip * vec4(0.0, 0.0, depth, 1.0);
+    return -p.z / p.w;
+}
+
+fn normal_at(pixel: vec2<i32>) -> vec3<f32> {
+    return octahedral_decode(unpack_24bit_normal(textureLoad(gbuffer, pixel, 0).a));
+}
+
+fn resolve(t: vec4<f32>) -> vec3<f32> {
+    // One volume: a fades towards its edges and the light with it; overlapping volumes average.
+    return t.rgb / max(t.a, 1.0);
+}
+
+fn gi_at(pixel: vec2<i32>, n: vec3<f32>, depth: f32) -> vec3<f32> {
+    if GI_SCALE == 1 {
+        return resolve(textureLoad(gi_texture, pixel, 0));
+    }
+    let low_size = vec2<i32>(textureDimensions(gi_texture));
+    let full_size = vec2<i32>(textureDimensions(depth_texture));
+    let pos = (vec2<f32>(pixel) + 0.5) / f32(GI_SCALE) - 0.5;
+    let base = vec2<i32>(floor(pos));
+    let f = pos - vec2<f32>(base);
+    let z = view_depth(depth);
+    var sum = vec3(0.0);
+    var total = 0.0;
+    var nearest = vec3(0.0);
+    var nearest_distance = 1e30;
+    for (var i = 0; i < 4; i++) {
+        let o = vec2(i & 1, i >> 1);
+        let q = clamp(base + o, vec2(0), low_size - 1);
+        let source = min(q * GI_SCALE, full_size - 1);
+        let d = textureLoad(depth_texture, source, 0);
+        if d <= 0.0 {
+            continue;
+        }
+        let bilinear = select(1.0 - f.x, f.x, o.x == 1) * select(1.0 - f.y, f.y, o.y == 1);
+        let dz = abs(view_depth(d) - z) / max(z, 1e-4);
+        let similarity = exp(-dz * 20.0) * pow(max(dot(normal_at(source), n), 0.0), 8.0);
+        let value = resolve(textureLoad(gi_texture, q, 0));
+        let w = (bilinear + 1e-3) * similarity;
+        sum += value * w;
+        total += w;
+        if dz < nearest_distance {
+            nearest_distance = dz;
+            nearest = value;
+        }
+    }
+    return select(nearest, sum / total, total > 1e-6);
+}
+
+@fragment
+fn composite(in: FullscreenVertexOutput) -> @location(0) vec4<f32> {
+    let pixel = vec2<i32>(floor(in.position.xy));
+#if DEBUG_VIEW >= 4
+    // The first GI light's RSM, its faces side by side.
+    let size = vec2<f32>(textureDimensions(depth_texture));
+    let faces = max(rsm_debug.faces, 1u);
+    let u = in.uv.x * f32(faces);
+    let face = min(u32(u), faces - 1u);
+    let texel = vec2<i32>(vec2(fract(u), in.uv.y) * f32(rsm_debug.resolution));
+    let layer = i32(rsm_debug.first_layer + face);
+    var c = vec3(0.0);
+    if DEBUG_VIEW == 4u {
+        c = textureLoad(rsm_flux, texel, layer, 0).rgb * rsm_debug.flux_display_scale;
+    } else if DEBUG_VIEW == 5u {
+        c = textureLoad(rsm_normal, texel, layer, 0).xyz * 0.5 + 0.5;
+    } else {
+        let p = textureLoad(rsm_position, texel, layer, 0);
+        c = select(vec3(0.0), fract(p.xyz), p.w > 0.0);
+    }
+    return vec4(c, 1.0);
+#else
+    let depth = textureLoad(depth_texture, pixel, 0);
+    if depth <= 0.0 {
+        if DEBUG_VIEW == 0u {
+            discard;
+        }
+        return vec4(0.0);
+    }
+    let g = textureLoad(gbuffer, pixel, 0);
+    let unlit = (unpack_flags(g.a) & DEFERRED_FLAGS_UNLIT_BIT) != 0u;
+    let n = octahedral_decode(unpack_24bit_normal(g.a));
+    let base_color = pow(unpack_unorm4x8_(g.r).rgb, vec3(2.2));
+    let metallic = unpack_unorm4x8_(g.b).g;
+    let albedo = select(base_color * (1.0 - metallic), vec3(0.0), unlit);
+#if DEBUG_VIEW == 3
+    let uv = (vec2<f32>(pixel) + 0.5) / vec2<f32>(textureDimensions(depth_texture));
+    let world_h = view.world_from_clip * vec4(uv.x * 2.0 - 1.0, 1.0 - uv.y * 2.0, depth, 1.0);
+    let local = world_to_local(volume, world_h.xyz / world_h.w);
+    if any(abs(local) > vec3(0.5)) {
+        return vec4(0.0, 0.0, 0.0, 1.0);
+    }
+    let res = volume.resolution.xyz;
+    let g_pos = (local + 0.5) * vec3<f32>(res);
+    let cell = min(vec3<u32>(g_pos), res - 1u);
+    let e = sh_irradiance(load_sh(cell_index(cell, res)), n) / PI * view.exposure;
+    // Darken the cell borders.
+    let edge = min(fract(g_pos), 1.0 - fract(g_pos));
+    let border = select(1.0, 0.35, min(edge.x, min(edge.y, edge.z)) < 0.04);
+    return vec4(e * border, 1.0);
+#else
+    let gi = gi_at(pixel, n, depth);
+    if DEBUG_VIEW == 2u {
+        return vec4(gi * view.exposure, 1.0);
+    }
+    let light = albedo * gi * view.exposure;
+    if DEBUG_VIEW == 1u {
+        return vec4(light, 1.0);
+    }
+    if unlit {
+        discard;
+    }
+    return vec4(light, 0.0);
+#endif
+#endif
+}

@@ -1,0 +1,195 @@
+// Radiance Hints injection (Papaioannou 2011, §4): every hint samples the reflective shadow maps of all GI
+// lights and projects the radiance it receives onto spherical harmonics.
+//
+// For RSM sample k at x_k (normal n_k, reflected flux ρΦ_T) and a receiving point y_k jittered inside the
+// hint's cell, Eq. 3–4 give the radiance-times-solid-angle arriving at y_k from direction ω_k = y_k → x_k:
+//
+//   L̃(y_k) = ρΦ_T(x_k) · (M/N) · max(0, n_k·(−ω_k)) / (π d²)
+//
+// with M the texels the samples are drawn from and N the samples; Eq. 5 sums L̃ · Y_lm(ω_k). This is the
+// unbiased estimator (d² is clamped at 1 cm²). Treating each sample as a disk of area A_k = A_texel·M/N
+// (d² + A_k/π, or the disk's exact solid angle) tames the noise of samples next to the hint but removes
+// 40–60 % of the light a hint one cell from a lit wall receives; on cornell it was less accurate than the
+// noisy unbiased form, whose noise the temporal refinement averages away (docs/radiance_hints.md).
+//
+// The hint also records the minimum and maximum distance to the RSM samples (normalised by r_max) for the
+// confidence (Eq. 9) and visibility (Eq. 11) of the paper's secondary bounces.
+//
+// VOXEL_VISIBILITY: the paper leaves the first bounce unoccluded (§7), so light reaches hints through
+// walls. Each sample's segment y_k → x_k is walked through the volume's voxelised scene and dropped when it
+// crosses a surface before reaching x_k. Hints inside solid geometry (validity 0) are skipped.
+
+#import bevy_diffuse_gi::rh_types::{
+    RhVolume, Sh, SH_COEFS, SH_FLOATS, PI, sh_add, cell_coords, cell_center_local, local_to_world, world_to_local,
+    local_to_occupancy, pcg, rand, rand3, finite3,
+}
+#ifdef VOXEL_VISIBILITY
+#import bevy_diffuse_gi::rh_occupancy::first_hit
+#endif
+#ifdef DEPTH_OCCLUSION
+#import bevy_render::view::View
+#endif
+
+struct GiLight {
+    clip_from_world: mat4x4<f32>,
+    flux_scale: f32,
+    sample_fraction: f32,
+    first_layer: u32,
+    faces: u32,
+    resolution: u32,
+    kind: u32,
+}
+
+@group(0) @binding(0) var<uniform> volume: RhVolume;
+@group(0) @binding(1) var<storage, read_write> out_delta: array<f32>;
+@group(0) @binding(2) var<storage, read_write> out_sum: array<f32>;
+@group(0) @binding(3) var<storage, read_write> out_distances: array<vec4<f32>>;
+// Per hint: albedo (rgb) and validity (a).
+@group(0) @binding(4) var<storage, read> hint_albedo: array<vec4<f32>>;
+
+@group(1) @binding(0) var rsm_position: texture_2d_array<f32>;
+@group(1) @binding(1) var rsm_normal: texture_2d_array<f32>;
+@group(1) @binding(2) var rsm_flux: texture_2d_array<f32>;
+@group(1) @binding(3) var<storage, read> lights: array<GiLight>;
+
+#ifdef DEPTH_OCCLUSION
+@group(3) @binding(0) var<uniform> view: View;
+@group(3) @binding(1) var depth_texture: texture_depth_2d;
+
+// §8: the fraction of a sample's light left after testing points along x → y against the camera's depth
+// buffer; each point found behind the visible surface removes `strength` of what remains.
+fn depth_attenuation(x: vec3<f32>, y: vec3<f32>) -> f32 {
+    let steps = volume.depth_occlusion_samples;
+    let size = vec2<f32>(textureDimensions(depth_texture));
+    var hidden = 0.0;
+    for (var i = 1u; i <= steps; i++) {
+        let p = mix(x, y, f32(i) / f32(steps + 1u));
+        let clip = view.clip_from_world * vec4(p, 1.0);
+        if clip.w <= 1e-6 {
+            continue;
+        }
+        let ndc = clip.xyz / clip.w;
+        if any(abs(ndc.xy) > vec2(1.0)) {
+            continue;
+        }
+        let pixel = vec2<i32>(clamp((vec2(ndc.x, -ndc.y) * 0.5 + 0.5) * size, vec2(0.0), size - 1.0));
+        // Reverse Z: larger is nearer. The point is hidden when the visible surface is nearer.
+        if ndc.z < textureLoad(depth_texture, pixel, 0) - 1e-7 {
+            hidden += 1.0;
+        }
+    }
+    return pow(1.0 - volume.depth_occlusion_strength, hidden);
+}
+#endif
+
+// A uniform point on the unit disk (concentric mapping).
+fn disk(u: vec2<f32>) -> vec2<f32> {
+    let r = sqrt(u.x);
+    let phi = 2.0 * PI * u.y;
+    return r * vec2(cos(phi), sin(phi));
+}
+
+@compute @workgroup_size(64)
+fn inject(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let index = gid.x;
+    if index >= volume.resolution.w {
+        return;
+    }
+    let res = volume.resolution.xyz;
+    let cell = vec3<f32>(cell_coords(index, res));
+    let center = local_to_world(volume, cell_center_local(cell, res));
+    var rng = pcg(index ^ pcg(volume.seed));
+
+    var sh: Sh;
+    var d_min = 3.0e38;
+    var d_max = 0.0;
+    var valid = 0.0;
+    let inside_solid = hint_albedo[index].a < 0.5;
+    let occupancy_res = volume.occupancy_resolution.xyz;
+    // How far an RSM sample is lifted off its surface before its path is tested: 1.5 occupancy voxels.
+    let lift = 1.5 * max(volume.cell.x, max(volume.cell.y, volume.cell.z)) / f32(volume.occupancy_resolution.x / volume.resolution.x);
+    for (var l = 0u; l < select(volume.light_count, 0u, inside_solid); l++) {
+        let light = lights[l];
+        if light.sample_fraction <= 0.0 {
+            continue;
+        }
+        let samples = u32(max(round(f32(volume.rsm_samples) * light.sample_fraction), 1.0));
+        let res_l = f32(light.resolution);
+        // c_RSM: directional lights may sample a disk around the hint's projection (§4).
+        let use_disk = light.kind == 0u && volume.coverage < 0.75;
+        var disk_center = vec2(0.5);
+        let radius = sqrt(volume.coverage / PI);
+        var texels = f32(light.faces) * res_l * res_l;
+        if use_disk {
+            let clip = light.clip_from_world * vec4(center, 1.0);
+            let ndc = clip.xy / max(clip.w, 1e-6);
+            disk_center = clamp(vec2(ndc.x, -ndc.y) * 0.5 + 0.5, vec2(radius), vec2(1.0 - radius));
+            texels = volume.coverage * res_l * res_l;
+        }
+        let weight = texels / f32(samples);
+        for (var s = 0u; s < samples; s++) {
+            let jitter = (rand3(&rng) - 0.5) * volume.jitter;
+            let y = local_to_world(volume, cell_center_local(cell + jitter, res));
+            var uv: vec2<f32>;
+            var face = 0u;
+            if use_disk {
+                uv = disk_center + radius * disk(vec2(rand(&rng), rand(&rng)));
+            } else {
+                face = min(u32(rand(&rng) * f32(light.faces)), light.faces - 1u);
+                uv = vec2(rand(&rng), rand(&rng));
+            }
+            let texel = vec2<i32>(clamp(uv * res_l, vec2(0.0), vec2(res_l - 1.0)));
+            let layer = i32(light.first_layer + face);
+            let p = textureLoad(rsm_position, texel, layer, 0);
+            if p.w <= 0.0 {
+                continue;
+            }
+            let to_x = p.xyz - y;
+            let d2 = dot(to_x, to_x);
+            let d = sqrt(d2);
+            d_min = min(d_min, d);
+            d_max = max(d_max, d);
+            valid += 1.0;
+            let w = to_x / max(d, 1e-6);
+            let n = textureLoad(rsm_normal, texel, layer, 0).xyz;
+            let cos_x = dot(n, -w);
+            if cos_x <= 0.0 {
+                continue;
+            }
+#ifdef VOXEL_VISIBILITY
+            // Test from the sample lifted off its surface along its normal: a path skimming the surface it
+            // leaves must not count its own voxels as occluders (that falsely removes grazing light and
+            // leaves only steep directions, whose SH ringing darkens surfaces facing the other way).
+            let a = local_to_occupancy(volume, world_to_local(volume, y));
+            let b = local_to_occupancy(volume, world_to_local(volume, p.xyz + n * lift));
+            if first_hit(a, b, occupancy_res, 0.5) >= 0.0 {
+                continue;
+            }
+#endif
+            let flux = textureLoad(rsm_flux, texel, layer, 0).rgb * light.flux_scale;
+            var contribution = flux * (weight * cos_x / (PI * max(d2, 1e-4)));
+#ifdef DEPTH_OCCLUSION
+            contribution *= depth_attenuation(p.xyz, y);
+#endif
+            sh_add(&sh, w, contribution);
+        }
+    }
+
+    let base = index * SH_FLOATS;
+    for (var i = 0u; i < SH_COEFS; i++) {
+        let c = finite3(sh.c[i] * volume.intensity);
+        out_delta[base + 3u * i] = c.x;
+        out_delta[base + 3u * i + 1u] = c.y;
+        out_delta[base + 3u * i + 2u] = c.z;
+        out_sum[base + 3u * i] = c.x;
+        out_sum[base + 3u * i + 1u] = c.y;
+        out_sum[base + 3u * i + 2u] = c.z;
+    }
+    let r = max(volume.r_max, 1e-6);
+    if valid > 0.0 {
+        out_distances[index] = vec4(min(d_min / r, 1.0), d_max / r, valid, 0.0);
+    } else {
+        // No geometry seen: far from everything, zero confidence.
+        out_distances[index] = vec4(1.0, 1.0, 0.0, 0.0);
+    }
+}

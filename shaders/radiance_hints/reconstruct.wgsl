@@ -1,0 +1,75 @@
+// Reconstruction of indirect light per pixel (Papaioannou 2011, §5, Eq. 6–7), one draw per volume into the
+// camera's GI target with additive blending.
+//
+// For a visible point p with normal n, N_RH positions are laid on a hemisphere of radius r (the cell
+// diagonal) around p + n·r/2 — the first on the normal, the rest on a cone 80° from it, rotated per pixel —
+// so that no hint behind the surface is read. At each, the radiance field is interpolated trilinearly and
+// integrated against the clamped cosine around n (Eq. 7); Eq. 6 averages them:
+//     L_r(p) = ρ(p)/(π N_RH) Σ_n E_n(n)
+// This pass writes E/π (the composite multiplies by ρ and the exposure), times a weight that is 1 inside the
+// volume's box and fades to zero over half a cell outside it (surfaces often lie exactly on the box, a volume
+// fitted to a room), and the weight itself in alpha, so overlapping volumes average.
+
+#import bevy_core_pipeline::fullscreen_vertex_shader::FullscreenVertexOutput
+#import bevy_render::view::View
+#import bevy_pbr::pbr_deferred_types::unpack_24bit_normal
+#import bevy_pbr::utils::{octahedral_decode, interleaved_gradient_noise}
+#import bevy_diffuse_gi::rh_types::{PI, world_to_local, sh_irradiance}
+#import bevy_diffuse_gi::rh_sampling::{volume, sample_sh}
+
+@group(0) @binding(0) var<uniform> view: View;
+@group(0) @binding(1) var depth_texture: texture_depth_2d;
+@group(0) @binding(2) var gbuffer: texture_2d<u32>;
+
+// 1 at full resolution, 2 at half resolution.
+const GI_SCALE: i32 = #{GI_SCALE};
+// Angle of the outer hemisphere samples from the normal (§5: 80°).
+const CONE_COS: f32 = 0.17364818;
+const CONE_SIN: f32 = 0.98480775;
+
+fn basis(n: vec3<f32>) -> mat3x3<f32> {
+    let s = select(-1.0, 1.0, n.z >= 0.0);
+    let a = -1.0 / (s + n.z);
+    let b = n.x * n.y * a;
+    return mat3x3(vec3(1.0 + s * n.x * n.x * a, s * b, -s * n.x), vec3(b, s + n.y * n.y * a, -n.y), n);
+}
+
+@fragment
+fn reconstruct(in: FullscreenVertexOutput) -> @location(0) vec4<f32> {
+    let size = vec2<i32>(textureDimensions(depth_texture));
+    let pixel = min(vec2<i32>(floor(in.position.xy)) * GI_SCALE, size - 1);
+    let depth = textureLoad(depth_texture, pixel, 0);
+    if depth <= 0.0 {
+        discard;
+    }
+    let uv = (vec2<f32>(pixel) + 0.5) / vec2<f32>(size);
+    let clip = vec4(uv.x * 2.0 - 1.0, 1.0 - uv.y * 2.0, depth, 1.0);
+    let world_h = view.world_from_clip * clip;
+    let world = world_h.xyz / world_h.w;
+
+    let local = world_to_local(volume, world);
+    let inside_cells = (0.5 - abs(local)) * vec3<f32>(volume.resolution.xyz);
+    let weight = saturate(1.0 + 2.0 * min(inside_cells.x, min(inside_cells.y, inside_cells.z)));
+    if weight <= 0.0 {
+        discard;
+    }
+
+    let n = octahedral_decode(unpack_24bit_normal(textureLoad(gbuffer, pixel, 0).a));
+    let r = volume.cell.w;
+    let origin = world + n * (0.5 * r);
+    let frame = basis(n);
+    let rotation = 2.0 * PI * interleaved_gradient_noise(vec2<f32>(pixel), 0u);
+    let count = max(volume.reconstruction_samples, 1u);
+    var irradiance = vec3(0.0);
+    for (var i = 0u; i < count; i++) {
+        var d = n;
+        if i > 0u {
+            let phi = rotation + 2.0 * PI * f32(i - 1u) / f32(max(count - 1u, 1u));
+            d = frame * vec3(CONE_SIN * cos(phi), CONE_SIN * sin(phi), CONE_COS);
+        }
+        irradiance += sh_irradiance(sample_sh(origin + d * r), n);
+    }
+    irradiance /= f32(count);
+    let radiance_per_albedo = irradiance / PI;
+    return vec4(radiance_per_albedo * weight, weight);
+}

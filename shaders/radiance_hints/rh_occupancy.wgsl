@@ -1,0 +1,70 @@
+// The voxelised scene of a Radiance Hints volume: one bit per voxel of a grid finer than the hints, set
+// where a triangle overlaps the voxel (src/radiance_hints/voxelize.rs). Bind group 2 of the passes that
+// trace through it. Positions are in occupancy-grid coordinates: voxel v spans [v, v + 1).
+#define_import_path bevy_diffuse_gi::rh_occupancy
+
+@group(2) @binding(0) var<storage, read> occupancy: array<u32>;
+
+fn occupied(v: vec3<i32>, res: vec3<u32>) -> bool {
+    if any(v < vec3(0)) || any(v >= vec3<i32>(res)) {
+        return false;
+    }
+    let i = u32(v.x) + res.x * (u32(v.y) + res.y * u32(v.z));
+    return (occupancy[i >> 5u] & (1u << (i & 31u))) != 0u;
+}
+
+// Walks the voxels the segment a → b passes through (Amanatides & Woo) and returns the fraction of the
+// segment at which it first enters an occupied voxel, or -1. The voxel containing `a` is skipped (the
+// start may sit on a surface), and so are voxels entered within `skip_end` voxel lengths of `b` (the end
+// is a surface point whose own voxels must not count).
+fn first_hit(a: vec3<f32>, b: vec3<f32>, res: vec3<u32>, skip_end: f32) -> f32 {
+    return first_hit_face(a, b, res, skip_end).w;
+}
+
+// Like `first_hit`, with the normal of the voxel face the segment entered through (grid axes, pointing
+// back towards `a`) in xyz and the fraction in w (-1 for no hit).
+fn first_hit_face(a: vec3<f32>, b: vec3<f32>, res: vec3<u32>, skip_end: f32) -> vec4<f32> {
+    let delta = b - a;
+    let len = length(delta);
+    if len < 1e-5 {
+        return vec4(0.0, 0.0, 0.0, -1.0);
+    }
+    let d = delta / len;
+    var v = vec3<i32>(floor(a));
+    let stepv = vec3<i32>(sign(d));
+    let inv = 1.0 / max(abs(d), vec3(1e-8));
+    // Distance along the segment to the next voxel boundary on each axis.
+    var t_max = select((floor(a) + 1.0 - a), (a - floor(a)), d < vec3(0.0)) * inv;
+    t_max = select(t_max, vec3(3.0e38), abs(d) < vec3(1e-8));
+    let t_delta = inv;
+    var t = 0.0;
+    let limit = len - skip_end;
+    let max_steps = i32(res.x + res.y + res.z) + 2;
+    var face = vec3(0.0);
+    for (var i = 0; i < max_steps; i++) {
+        // Advance to the next voxel.
+        if t_max.x < t_max.y && t_max.x < t_max.z {
+            t = t_max.x;
+            t_max.x += t_delta.x;
+            v.x += stepv.x;
+            face = vec3(-f32(stepv.x), 0.0, 0.0);
+        } else if t_max.y < t_max.z {
+            t = t_max.y;
+            t_max.y += t_delta.y;
+            v.y += stepv.y;
+            face = vec3(0.0, -f32(stepv.y), 0.0);
+        } else {
+            t = t_max.z;
+            t_max.z += t_delta.z;
+            v.z += stepv.z;
+            face = vec3(0.0, 0.0, -f32(stepv.z));
+        }
+        if t >= limit {
+            return vec4(0.0, 0.0, 0.0, -1.0);
+        }
+        if occupied(v, res) {
+            return vec4(face, t / len);
+        }
+    }
+    return vec4(0.0, 0.0, 0.0, -1.0);
+}

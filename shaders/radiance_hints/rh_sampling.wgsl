@@ -1,0 +1,95 @@
+// Reading a Radiance Hints volume at arbitrary positions (trilinear between hint centres).
+// Bind group 1 of every pass that reads a volume.
+#define_import_path bevy_diffuse_gi::rh_sampling
+
+#import bevy_diffuse_gi::rh_types::{RhVolume, Sh, SH_COEFS, SH_FLOATS, world_to_local, cell_index}
+
+@group(1) @binding(0) var<uniform> volume: RhVolume;
+// SH_FLOATS floats per hint: the radiance field being read.
+@group(1) @binding(1) var<storage, read> source_sh: array<f32>;
+// Per hint: (r_min, r_max) of Eq. 9–11 normalised by r_max, valid RSM samples, unused.
+@group(1) @binding(2) var<storage, read> distances: array<vec4<f32>>;
+// Per hint: mean diffuse albedo of the surfaces in its cell (rgb), validity (a: 0 = inside solid geometry).
+@group(1) @binding(3) var<storage, read> albedo: array<vec4<f32>>;
+
+struct Trilinear {
+    cells: array<u32, 8>,
+    weights: array<f32, 8>,
+}
+
+// The eight hints around a world position and their trilinear weights (clamped to the grid, so
+// positions beyond the outer hints take the nearest ones). Hints inside solid geometry get no weight
+// (they see light through the solid), unless all eight are inside.
+fn trilinear(world: vec3<f32>) -> Trilinear {
+    let res = volume.resolution.xyz;
+    let g = clamp((world_to_local(volume, world) + 0.5) * vec3<f32>(res) - 0.5, vec3(0.0), vec3<f32>(res - 1u));
+    let base = min(vec3<u32>(floor(g)), res - 1u);
+    let f = g - vec3<f32>(base);
+    var t: Trilinear;
+    for (var i = 0u; i < 8u; i++) {
+        let o = vec3<u32>(i & 1u, (i >> 1u) & 1u, (i >> 2u) & 1u);
+        let c = min(base + o, res - 1u);
+        t.cells[i] = cell_index(c, res);
+        let w = select(1.0 - f, f, vec3<bool>(o == vec3(1u)));
+        t.weights[i] = w.x * w.y * w.z;
+    }
+    var valid = 0.0;
+    for (var i = 0u; i < 8u; i++) {
+        valid += t.weights[i] * albedo[t.cells[i]].a;
+    }
+    if valid > 1e-4 {
+        for (var i = 0u; i < 8u; i++) {
+            t.weights[i] *= albedo[t.cells[i]].a / valid;
+        }
+    }
+    return t;
+}
+
+fn load_sh(cell: u32) -> Sh {
+    var sh: Sh;
+    let base = cell * SH_FLOATS;
+    for (var i = 0u; i < SH_COEFS; i++) {
+        sh.c[i] = vec3(source_sh[base + 3u * i], source_sh[base + 3u * i + 1u], source_sh[base + 3u * i + 2u]);
+    }
+    return sh;
+}
+
+fn sample_sh(world: vec3<f32>) -> Sh {
+    let t = trilinear(world);
+    var sh: Sh;
+    for (var k = 0u; k < 8u; k++) {
+        let w = t.weights[k];
+        if w <= 0.0 {
+            continue;
+        }
+        let base = t.cells[k] * SH_FLOATS;
+        for (var i = 0u; i < SH_COEFS; i++) {
+            sh.c[i] += w * vec3(source_sh[base + 3u * i], source_sh[base + 3u * i + 1u], source_sh[base + 3u * i + 2u]);
+        }
+    }
+    return sh;
+}
+
+fn sample_distances(world: vec3<f32>) -> vec4<f32> {
+    let t = trilinear(world);
+    var d = vec4(0.0);
+    for (var k = 0u; k < 8u; k++) {
+        d += t.weights[k] * distances[t.cells[k]];
+    }
+    return d;
+}
+
+fn sample_albedo(world: vec3<f32>) -> vec3<f32> {
+    let t = trilinear(world);
+    var a = vec3(0.0);
+    for (var k = 0u; k < 8u; k++) {
+        a += t.weights[k] * albedo[t.cells[k]].rgb;
+    }
+    return a;
+}
+
+// Whether a world position lies inside the volume's box.
+fn inside_volume(world: vec3<f32>) -> bool {
+    let l = world_to_local(volume, world);
+    return all(abs(l) <= vec3(0.5));
+}

@@ -1,0 +1,154 @@
+// Shared definitions of the Radiance Hints passes: the volume uniform, spherical harmonics (same order and
+// constants as `src/sh.rs`, whose tests pin them), grid mapping and random numbers.
+#define_import_path bevy_diffuse_gi::rh_types
+
+// Coefficients per colour channel: 4 (SH order 2) or 9 (order 3), from the pipeline's shader defs.
+const SH_COEFS: u32 = #{SH_COEFS}u;
+// Floats per hint in the SH buffers: RGB per coefficient, coefficient-major.
+const SH_FLOATS: u32 = SH_COEFS * 3u;
+const PI: f32 = 3.141592653589793;
+
+struct RhVolume {
+    // Unit cube [-0.5, 0.5]³ → world, and back.
+    world_from_local: mat4x4<f32>,
+    local_from_world: mat4x4<f32>,
+    // xyz: hints per axis; w: hints in all.
+    resolution: vec4<u32>,
+    // xyz: world-space length of a cell along the volume's local axes; w: the cell's diagonal (metres).
+    cell: vec4<f32>,
+    // r_max of Eq. 9–11, metres.
+    r_max: f32,
+    // Jitter of RSM sample receivers inside the cell, fraction of a cell.
+    jitter: f32,
+    // N_s: RSM samples per hint.
+    rsm_samples: u32,
+    light_count: u32,
+    // N_b of Eq. 8: hints sampled per hint and extra bounce.
+    secondary_samples: u32,
+    // Changes with every update and bounce: decorrelates the random numbers.
+    seed: u32,
+    // c_RSM for directional lights.
+    coverage: f32,
+    // Weight of this update in the temporal blend (1 on the first update).
+    temporal_blend: f32,
+    intensity: f32,
+    bounce_threshold: f32,
+    albedo_volume: u32,
+    depth_occlusion_samples: u32,
+    depth_occlusion_strength: f32,
+    reconstruction_samples: u32,
+    // Workgroups of 64 covering every hint.
+    workgroups: u32,
+    // Index of the bounce being computed (1 = first extra bounce).
+    bounce: u32,
+    // xyz: voxels of the occupancy grid per axis; w: unused.
+    occupancy_resolution: vec4<u32>,
+}
+
+// Volume-local position → occupancy-grid coordinates (voxel v spans [v, v + 1)).
+fn local_to_occupancy(v: RhVolume, local: vec3<f32>) -> vec3<f32> {
+    return (local + 0.5) * vec3<f32>(v.occupancy_resolution.xyz);
+}
+
+struct Sh {
+    c: array<vec3<f32>, SH_COEFS>,
+}
+
+// The real SH basis at unit direction d (see src/sh.rs).
+fn sh_basis(d: vec3<f32>) -> array<f32, SH_COEFS> {
+    var y: array<f32, SH_COEFS>;
+    y[0] = 0.2820948;
+    y[1] = 0.4886025 * d.y;
+    y[2] = 0.4886025 * d.z;
+    y[3] = 0.4886025 * d.x;
+#if SH_COEFS == 9
+    y[4] = 1.0925485 * d.x * d.y;
+    y[5] = 1.0925485 * d.y * d.z;
+    y[6] = 0.31539157 * (3.0 * d.z * d.z - 1.0);
+    y[7] = 1.0925485 * d.x * d.z;
+    y[8] = 0.5462742 * (d.x * d.x - d.y * d.y);
+#endif
+    return y;
+}
+
+// Ramamoorthi–Hanrahan clamped-cosine weight of coefficient i: π, 2π/3, π/4 for bands 0, 1, 2.
+fn cosine_lobe(i: u32) -> f32 {
+    if i == 0u {
+        return PI;
+    }
+    if i < 4u {
+        return 2.0 * PI / 3.0;
+    }
+    return PI / 4.0;
+}
+
+// Adds value · Y(d): one sample of the projection integral (Eq. 5).
+fn sh_add(sh: ptr<function, Sh>, d: vec3<f32>, value: vec3<f32>) {
+    let y = sh_basis(d);
+    for (var i = 0u; i < SH_COEFS; i++) {
+        (*sh).c[i] += value * y[i];
+    }
+}
+
+// Irradiance ∫ L(ω) max(0, n·ω) dω on a surface with normal n (Eq. 7), clamped at zero against ringing.
+fn sh_irradiance(sh: Sh, n: vec3<f32>) -> vec3<f32> {
+    let y = sh_basis(n);
+    var e = vec3(0.0);
+    for (var i = 0u; i < SH_COEFS; i++) {
+        e += sh.c[i] * (cosine_lobe(i) * y[i]);
+    }
+    return max(e, vec3(0.0));
+}
+
+fn cell_coords(index: u32, res: vec3<u32>) -> vec3<u32> {
+    return vec3(index % res.x, (index / res.x) % res.y, index / (res.x * res.y));
+}
+
+fn cell_index(c: vec3<u32>, res: vec3<u32>) -> u32 {
+    return c.x + res.x * (c.y + res.y * c.z);
+}
+
+// Volume-local position in [-0.5, 0.5]³ of the centre of cell c (hints sit at cell centres).
+fn cell_center_local(c: vec3<f32>, res: vec3<u32>) -> vec3<f32> {
+    return (c + 0.5) / vec3<f32>(res) - 0.5;
+}
+
+fn local_to_world(v: RhVolume, local: vec3<f32>) -> vec3<f32> {
+    return (v.world_from_local * vec4(local, 1.0)).xyz;
+}
+
+fn world_to_local(v: RhVolume, world: vec3<f32>) -> vec3<f32> {
+    return (v.local_from_world * vec4(world, 1.0)).xyz;
+}
+
+// PCG hash (Jarzynski & Olano 2020).
+fn pcg(v: u32) -> u32 {
+    let state = v * 747796405u + 2891336453u;
+    let word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
+    return (word >> 22u) ^ word;
+}
+
+// A uniform float in [0, 1) from a 32-bit state, advancing it.
+fn rand(state: ptr<function, u32>) -> f32 {
+    *state = pcg(*state);
+    return f32(*state >> 8u) * (1.0 / 16777216.0);
+}
+
+fn rand3(state: ptr<function, u32>) -> vec3<f32> {
+    return vec3(rand(state), rand(state), rand(state));
+}
+
+// Uniform direction on the sphere.
+fn uniform_sphere(u: vec2<f32>) -> vec3<f32> {
+    let z = 1.0 - 2.0 * u.x;
+    let r = sqrt(max(0.0, 1.0 - z * z));
+    let phi = 2.0 * PI * u.y;
+    return vec3(r * cos(phi), r * sin(phi), z);
+}
+
+// A finite vector or zero: every value written to a buffer goes through this.
+fn finite3(v: vec3<f32>) -> vec3<f32> {
+    // NaN fails every comparison; infinities exceed the largest float.
+    let ok = abs(v) <= vec3(3.0e38);
+    return select(vec3(0.0), v, ok);
+}

@@ -1,0 +1,67 @@
+//! Reading a volume back to the CPU, for measurements and debugging: with the [`RhVolumeDump`]
+//! resource present, the render world writes the first volume's displayed field to a JSON file after every
+//! frame (a blocking GPU readback: not for shipping builds).
+
+use std::path::PathBuf;
+
+use bevy::prelude::*;
+use bevy::render::extract_resource::ExtractResource;
+use bevy::render::render_resource::{Buffer, BufferDescriptor, BufferUsages, CommandEncoderDescriptor, MapMode, PollType};
+use bevy::render::renderer::{RenderDevice, RenderQueue};
+use serde_json::json;
+
+use super::prepare::RhVolumesGpu;
+use super::sh_floats;
+
+/// Write the first Radiance Hints volume to `path` (JSON: resolution, SH order, `world_from_local`, and per
+/// hint the SH coefficients, distances and albedo/validity) after every rendered frame.
+#[derive(Resource, Clone, Debug, ExtractResource)]
+pub struct RhVolumeDump {
+    pub path: PathBuf,
+}
+
+fn read_buffer(device: &RenderDevice, queue: &RenderQueue, source: &Buffer) -> Vec<f32> {
+    let size = source.size();
+    let staging = device.create_buffer(&BufferDescriptor {
+        label: Some("diffuse_gi_rh_dump_staging"),
+        size,
+        usage: BufferUsages::MAP_READ | BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    let mut encoder = device.create_command_encoder(&CommandEncoderDescriptor { label: Some("diffuse_gi_rh_dump") });
+    encoder.copy_buffer_to_buffer(source, 0, &staging, 0, size);
+    queue.submit([encoder.finish()]);
+    let slice = staging.slice(..);
+    slice.map_async(MapMode::Read, |_| {});
+    let _ = device.wgpu_device().poll(PollType::wait_indefinitely());
+    let data = slice.get_mapped_range();
+    bytemuck::cast_slice::<u8, f32>(&data).to_vec()
+}
+
+pub(crate) fn dump_volume(
+    dump: Option<Res<RhVolumeDump>>,
+    volumes: Res<RhVolumesGpu>,
+    device: Res<RenderDevice>,
+    queue: Res<RenderQueue>,
+) {
+    let (Some(dump), Some(v)) = (dump, volumes.volumes.first()) else {
+        return;
+    };
+    let floats = sh_floats(v.settings.sh_order);
+    let hints = v.hints as usize;
+    let result = read_buffer(&device, &queue, &v.result);
+    let distances = read_buffer(&device, &queue, &v.distances);
+    let albedo = read_buffer(&device, &queue, &v.albedo);
+    let text = json!({
+        "resolution": v.settings.resolution.to_array(),
+        "sh_coefficients": v.settings.sh_order.coefficients(),
+        "world_from_local": v.world_from_local.to_cols_array(),
+        "updates_left": v.updates_left,
+        "sh": result[..hints * floats].to_vec(),
+        "distances": distances[..hints * 4].to_vec(),
+        "albedo_validity": albedo[..hints * 4].to_vec(),
+    });
+    if let Err(e) = std::fs::write(&dump.path, text.to_string()) {
+        warn_once!("bevy_diffuse_gi: cannot write the volume dump {}: {e}", dump.path.display());
+    }
+}

@@ -1,0 +1,285 @@
+//! Main world: validation, albedo voxelisation, IrradianceVolume export entities; and extraction to the
+//! render world.
+
+use std::sync::Arc;
+
+use bevy::asset::RenderAssetUsages;
+use bevy::image::ImageSampler;
+use bevy::light::{IrradianceVolume, LightProbe};
+use bevy::platform::collections::HashSet;
+use bevy::prelude::*;
+use bevy::render::render_resource::{Extent3d, TextureDimension, TextureFormat, TextureUsages};
+use bevy::render::sync_world::RenderEntity;
+
+use bevy::render::Extract;
+
+use super::settings::RadianceHintsVolume;
+use super::voxelize::{GeometryVoxels, voxelize};
+use crate::camera::{DiffuseGi, GiOutput};
+use crate::light::GiLight;
+use crate::rsm::RsmFocus;
+use crate::scene::SceneSnapshot;
+
+/// The voxelised scene of a [`RadianceHintsVolume`] (albedo, hint validity, occupancy; see
+/// [`super::voxelize`]), redone when geometry or the volume changes.
+#[derive(Component, Clone, Debug)]
+pub struct RhGeometryVoxels {
+    /// Bumped at every voxelisation.
+    pub generation: u64,
+    /// What it was voxelised from: snapshot geometry generation, transform, resolution.
+    key: (u64, [u32; 16], UVec3),
+    pub data: Arc<GeometryVoxels>,
+}
+
+/// The Bevy [`IrradianceVolume`] image a volume writes when a camera asks for
+/// [`GiOutput::IrradianceVolume`]; the probe is a child entity carrying this same handle.
+#[derive(Component, Clone, Debug)]
+pub struct RhIrradianceExport {
+    pub image: Handle<Image>,
+    pub probe: Entity,
+    resolution: UVec3,
+}
+
+/// Warns once per entity and field about clamped settings.
+pub(crate) fn validate_settings(
+    volumes: Query<(Entity, &RadianceHintsVolume), Changed<RadianceHintsVolume>>,
+    lights: Query<(Entity, &GiLight), Changed<GiLight>>,
+    mut warned: Local<HashSet<(Entity, &'static str)>>,
+) {
+    for (entity, volume) in &volumes {
+        let (clamped, fields) = volume.sanitized();
+        for field in fields {
+            if warned.insert((entity, field)) {
+                warn!(
+                    "bevy_diffuse_gi: RadianceHintsVolume on {entity}: invalid `{field}`, using {:?}",
+                    field_value(&clamped, field)
+                );
+            }
+        }
+    }
+    for (entity, light) in &lights {
+        let r = light.rsm_resolution;
+        if !(GiLight::MIN_RSM_RESOLUTION..=GiLight::MAX_RSM_RESOLUTION).contains(&r) && warned.insert((entity, "rsm_resolution")) {
+            warn!(
+                "bevy_diffuse_gi: GiLight on {entity}: rsm_resolution {r} is outside {}..={}, clamped",
+                GiLight::MIN_RSM_RESOLUTION,
+                GiLight::MAX_RSM_RESOLUTION
+            );
+        }
+    }
+}
+
+fn field_value(v: &RadianceHintsVolume, field: &str) -> String {
+    match field {
+        "resolution" => format!("{}", v.resolution),
+        "rsm_samples" => v.rsm_samples.to_string(),
+        "rsm_coverage" => v.rsm_coverage.to_string(),
+        "jitter" => v.jitter.to_string(),
+        "extra_bounces" => v.extra_bounces.to_string(),
+        "secondary_samples" => v.secondary_samples.to_string(),
+        "r_max" => v.r_max.to_string(),
+        "bounce_threshold" => v.bounce_threshold.to_string(),
+        "temporal_blend" => v.temporal_blend.to_string(),
+        "refinement_updates" => v.refinement_updates.to_string(),
+        "reconstruction_samples" => v.reconstruction_samples.to_string(),
+        "intensity" => v.intensity.to_string(),
+        _ => format!("{:?}", v.depth_occlusion),
+    }
+}
+
+/// The world-from-unit-cube matrix of a volume, with a degenerate or non-finite transform replaced by a
+/// 1 m cube at the origin (and a warning).
+pub(crate) fn volume_matrix(entity: Entity, transform: &GlobalTransform, warned: &mut HashSet<Entity>) -> Mat4 {
+    let m = transform.to_matrix();
+    let det = m.determinant();
+    if m.is_finite() && det.abs() > 1e-12 {
+        return m;
+    }
+    if warned.insert(entity) {
+        warn!("bevy_diffuse_gi: RadianceHintsVolume on {entity} has a degenerate or non-finite transform; using a 1 m cube at the origin");
+    }
+    Mat4::IDENTITY
+}
+
+/// Inserts the scene snapshot (the RSMs rasterise it) as soon as a GI light exists.
+pub(crate) fn ensure_snapshot(mut commands: Commands, snapshot: Option<Res<SceneSnapshot>>, lights: Query<(), With<GiLight>>) {
+    if snapshot.is_none() && !lights.is_empty() {
+        commands.init_resource::<SceneSnapshot>();
+    }
+}
+
+/// Re-voxelises every volume whose geometry, transform or resolution changed.
+pub(crate) fn update_geometry_voxels(
+    mut commands: Commands,
+    snapshot: Option<Res<SceneSnapshot>>,
+    volumes: Query<(Entity, &RadianceHintsVolume, &GlobalTransform, Option<&RhGeometryVoxels>)>,
+    mut warned: Local<HashSet<Entity>>,
+) {
+    let Some(snapshot) = snapshot else {
+        return;
+    };
+    for (entity, volume, transform, voxels) in &volumes {
+        let (settings, _) = volume.sanitized();
+        let matrix = volume_matrix(entity, transform, &mut warned);
+        let key = (
+            snapshot.geometry_generation,
+            matrix.to_cols_array().map(f32::to_bits),
+            settings.resolution,
+        );
+        if voxels.is_some_and(|v| v.key == key) {
+            continue;
+        }
+        let data = voxelize(&snapshot, matrix, settings.resolution);
+        commands.entity(entity).insert(RhGeometryVoxels {
+            generation: voxels.map_or(1, |v| v.generation + 1),
+            key,
+            data: Arc::new(data),
+        });
+    }
+}
+
+/// Creates (or removes) the IrradianceVolume probes of every volume, depending on whether an active
+/// [`DiffuseGi`] camera asks for [`GiOutput::IrradianceVolume`].
+pub(crate) fn manage_irradiance_exports(
+    mut commands: Commands,
+    cameras: Query<(&Camera, &DiffuseGi)>,
+    volumes: Query<(Entity, &RadianceHintsVolume, Option<&RhIrradianceExport>)>,
+    mut images: ResMut<Assets<Image>>,
+) {
+    let wanted = cameras
+        .iter()
+        .any(|(camera, gi)| camera.is_active && gi.enabled && gi.output == GiOutput::IrradianceVolume);
+    for (entity, volume, export) in &volumes {
+        let resolution = volume.sanitized().0.resolution;
+        match (wanted, export) {
+            (true, Some(e)) if e.resolution == resolution => {}
+            (true, existing) => {
+                if let Some(e) = existing {
+                    commands.entity(e.probe).despawn();
+                }
+                let mut image = Image::new_uninit(
+                    Extent3d {
+                        width: resolution.x,
+                        height: 2 * resolution.y,
+                        depth_or_array_layers: 3 * resolution.z,
+                    },
+                    TextureDimension::D3,
+                    TextureFormat::Rgba16Float,
+                    RenderAssetUsages::RENDER_WORLD,
+                );
+                image.texture_descriptor.usage |= TextureUsages::STORAGE_BINDING;
+                image.sampler = ImageSampler::linear();
+                let image = images.add(image);
+                // A child with an identity transform: the probe covers exactly the volume's box.
+                let probe = commands
+                    .spawn((
+                        LightProbe::new(),
+                        IrradianceVolume {
+                            voxels: image.clone(),
+                            intensity: 1.0,
+                            affects_lightmapped_meshes: true,
+                        },
+                        Transform::IDENTITY,
+                        ChildOf(entity),
+                    ))
+                    .id();
+                commands.entity(entity).insert(RhIrradianceExport { image, probe, resolution });
+            }
+            (false, Some(e)) => {
+                commands.entity(e.probe).despawn();
+                commands.entity(entity).remove::<RhIrradianceExport>();
+            }
+            (false, None) => {}
+        }
+    }
+}
+
+/// A volume as the render world sees it.
+#[derive(Clone, Debug)]
+pub struct ExtractedRhVolume {
+    pub entity: Entity,
+    pub settings: RadianceHintsVolume,
+    pub world_from_local: Mat4,
+    /// The voxelised scene and its generation, once voxelised.
+    pub voxels: Option<(u64, Arc<GeometryVoxels>)>,
+    pub export: Option<Handle<Image>>,
+}
+
+/// Every active [`RadianceHintsVolume`], in a stable order.
+#[derive(Resource, Default)]
+pub struct ExtractedRhVolumes {
+    pub volumes: Vec<ExtractedRhVolume>,
+}
+
+type VolumeQuery<'a> = (
+    Entity,
+    &'a RadianceHintsVolume,
+    &'a GlobalTransform,
+    Option<&'a InheritedVisibility>,
+    Option<&'a RhGeometryVoxels>,
+    Option<&'a RhIrradianceExport>,
+);
+
+pub(crate) fn extract_volumes(
+    volumes: Extract<Query<VolumeQuery>>,
+    mut extracted: ResMut<ExtractedRhVolumes>,
+    mut focus: ResMut<RsmFocus>,
+    mut warned: Local<HashSet<Entity>>,
+) {
+    extracted.volumes.clear();
+    let mut bounds: Option<(Vec3, Vec3)> = None;
+    for (entity, volume, transform, visibility, voxels, export) in &volumes {
+        if visibility.is_some_and(|v| !v.get()) {
+            continue;
+        }
+        let (settings, _) = volume.sanitized();
+        let world_from_local = volume_matrix(entity, transform, &mut warned);
+        for i in 0..8 {
+            let corner = Vec3::new(
+                if i & 1 == 0 { -0.5 } else { 0.5 },
+                if i & 2 == 0 { -0.5 } else { 0.5 },
+                if i & 4 == 0 { -0.5 } else { 0.5 },
+            );
+            let p = world_from_local.transform_point3(corner);
+            bounds = Some(bounds.map_or((p, p), |(lo, hi)| (lo.min(p), hi.max(p))));
+        }
+        extracted.volumes.push(ExtractedRhVolume {
+            entity,
+            voxels: voxels.map(|v| (v.generation, v.data.clone())),
+            settings,
+            world_from_local,
+            export: export.map(|e| e.image.clone()),
+        });
+    }
+    extracted.volumes.sort_by_key(|v| v.entity);
+    let next = RsmFocus { bounds };
+    if *focus != next {
+        *focus = next;
+    }
+}
+
+/// The camera's [`DiffuseGi`] in the render world (present only while the camera is active and GI is on).
+#[derive(Component, Clone, Debug, PartialEq)]
+pub struct ExtractedDiffuseGi(pub DiffuseGi);
+
+pub(crate) fn extract_cameras(
+    mut commands: Commands,
+    cameras: Extract<Query<(RenderEntity, &Camera, &DiffuseGi)>>,
+    without: Extract<Query<RenderEntity, (With<Camera>, Without<DiffuseGi>)>>,
+) {
+    for entity in &without {
+        if let Ok(mut entity) = commands.get_entity(entity) {
+            entity.remove::<ExtractedDiffuseGi>();
+        }
+    }
+    for (entity, camera, gi) in &cameras {
+        let Ok(mut entity) = commands.get_entity(entity) else {
+            continue;
+        };
+        if camera.is_active && gi.enabled {
+            entity.insert(ExtractedDiffuseGi(gi.clone()));
+        } else {
+            entity.remove::<ExtractedDiffuseGi>();
+        }
+    }
+}

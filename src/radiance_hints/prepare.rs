@@ -1,0 +1,696 @@
+//! Render world: pipelines, the per-volume buffers, which volumes update this frame, and bind groups.
+
+use bevy::diagnostic::FrameCount;
+use bevy::core_pipeline::FullscreenShader;
+use bevy::math::{Mat4, UVec3, UVec4, Vec3, Vec4};
+use bevy::platform::collections::HashMap;
+use bevy::prelude::*;
+use bevy::render::render_resource::binding_types::{
+    storage_buffer_read_only_sized, storage_buffer_sized, texture_2d, texture_2d_array, texture_depth_2d,
+    texture_storage_3d, uniform_buffer,
+};
+use bevy::render::render_resource::*;
+use bevy::render::renderer::{RenderDevice, RenderQueue};
+use bevy::render::view::ViewUniform;
+use bevy::shader::ShaderDefVal;
+
+use super::extract::{ExtractedDiffuseGi, ExtractedRhVolumes};
+use super::settings::RadianceHintsVolume;
+use super::{RhShaders, sh_floats};
+use crate::rsm::RsmAtlas;
+use crate::sh::ShOrder;
+
+/// Workgroup size of every volume pass (threads per group, one hint each).
+pub const WORKGROUP_SIZE: u32 = 64;
+/// Format of the per-camera GI target of the reconstruction.
+pub const GI_TARGET_FORMAT: TextureFormat = TextureFormat::Rgba16Float;
+
+/// The volume uniform (`RhVolume` in `shaders/radiance_hints/rh_types.wgsl`).
+#[derive(ShaderType, Clone, Copy, Debug, Default)]
+pub struct RhVolumeUniform {
+    pub world_from_local: Mat4,
+    pub local_from_world: Mat4,
+    pub resolution: UVec4,
+    pub cell: Vec4,
+    pub r_max: f32,
+    pub jitter: f32,
+    pub rsm_samples: u32,
+    pub light_count: u32,
+    pub secondary_samples: u32,
+    pub seed: u32,
+    pub coverage: f32,
+    pub temporal_blend: f32,
+    pub intensity: f32,
+    pub bounce_threshold: f32,
+    pub albedo_volume: u32,
+    pub depth_occlusion_samples: u32,
+    pub depth_occlusion_strength: f32,
+    pub reconstruction_samples: u32,
+    pub workgroups: u32,
+    pub bounce: u32,
+    pub occupancy_resolution: UVec4,
+}
+
+/// The volume passes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum RhPass {
+    Inject { depth_occlusion: bool, voxel_visibility: bool },
+    Bounce { paper: bool },
+    Decide,
+    Blend,
+    Export,
+}
+
+/// Key of the compute pipelines.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct RhPipelineKey {
+    pub pass: RhPass,
+    pub sh_order: ShOrder,
+}
+
+/// Key of the reconstruction pipeline.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct RhReconstructKey {
+    pub sh_order: ShOrder,
+    pub half_resolution: bool,
+}
+
+/// Layouts and shaders of every Radiance Hints pass.
+#[derive(Resource)]
+pub struct RhPipelines {
+    /// Group 0 of the injection: uniform, delta, sum, distances.
+    pub inject_output_layout: BindGroupLayoutDescriptor,
+    /// Group 1 of the injection: the RSM atlas and the GI lights.
+    pub rsm_layout: BindGroupLayoutDescriptor,
+    /// Group 3 of the injection with §8 occlusion: the camera's view and depth.
+    pub depth_layout: BindGroupLayoutDescriptor,
+    /// Group 2 of the injection and the bounces: the occupancy bits (`rh_occupancy.wgsl`).
+    pub occupancy_layout: BindGroupLayoutDescriptor,
+    /// Group 1 of every pass that reads a volume (`rh_sampling.wgsl`): uniform, SH, distances, albedo.
+    pub sample_layout: BindGroupLayoutDescriptor,
+    /// Group 0 of a bounce: delta out, sum, partial energies.
+    pub bounce_output_layout: BindGroupLayoutDescriptor,
+    pub decide_layout: BindGroupLayoutDescriptor,
+    pub blend_layout: BindGroupLayoutDescriptor,
+    pub export_layout: BindGroupLayoutDescriptor,
+    /// Group 0 of the reconstruction: view, depth, G-buffer.
+    pub reconstruct_view_layout: BindGroupLayoutDescriptor,
+    shaders: RhShaders,
+    fullscreen: VertexState,
+}
+
+impl FromWorld for RhPipelines {
+    fn from_world(world: &mut World) -> Self {
+        let shaders = world.resource::<RhShaders>().clone();
+        let fullscreen = world.resource::<FullscreenShader>().to_vertex_state();
+        let rw = || storage_buffer_sized(false, None);
+        let ro = || storage_buffer_read_only_sized(false, None);
+        let uniform = || uniform_buffer::<RhVolumeUniform>(true);
+        let compute = ShaderStages::COMPUTE;
+        let unfilterable = TextureSampleType::Float { filterable: false };
+        Self {
+            inject_output_layout: BindGroupLayoutDescriptor::new(
+                "diffuse_gi_rh_inject_output_layout",
+                &BindGroupLayoutEntries::sequential(compute, (uniform(), rw(), rw(), rw(), ro())),
+            ),
+            occupancy_layout: BindGroupLayoutDescriptor::new(
+                "diffuse_gi_rh_occupancy_layout",
+                &BindGroupLayoutEntries::single(compute, ro()),
+            ),
+            rsm_layout: BindGroupLayoutDescriptor::new(
+                "diffuse_gi_rh_rsm_layout",
+                &BindGroupLayoutEntries::sequential(
+                    compute,
+                    (texture_2d_array(unfilterable), texture_2d_array(unfilterable), texture_2d_array(unfilterable), ro()),
+                ),
+            ),
+            depth_layout: BindGroupLayoutDescriptor::new(
+                "diffuse_gi_rh_depth_layout",
+                &BindGroupLayoutEntries::sequential(compute, (uniform_buffer::<ViewUniform>(true), texture_depth_2d())),
+            ),
+            sample_layout: BindGroupLayoutDescriptor::new(
+                "diffuse_gi_rh_sample_layout",
+                &BindGroupLayoutEntries::sequential(
+                    ShaderStages::COMPUTE | ShaderStages::FRAGMENT,
+                    (uniform(), ro(), ro(), ro()),
+                ),
+            ),
+            bounce_output_layout: BindGroupLayoutDescriptor::new(
+                "diffuse_gi_rh_bounce_output_layout",
+                &BindGroupLayoutEntries::sequential(compute, (rw(), rw(), rw())),
+            ),
+            decide_layout: BindGroupLayoutDescriptor::new(
+                "diffuse_gi_rh_decide_layout",
+                &BindGroupLayoutEntries::sequential(compute, (uniform(), ro(), rw(), rw())),
+            ),
+            blend_layout: BindGroupLayoutDescriptor::new(
+                "diffuse_gi_rh_blend_layout",
+                &BindGroupLayoutEntries::sequential(compute, (uniform(), ro(), rw())),
+            ),
+            export_layout: BindGroupLayoutDescriptor::new(
+                "diffuse_gi_rh_export_layout",
+                &BindGroupLayoutEntries::single(
+                    compute,
+                    texture_storage_3d(TextureFormat::Rgba16Float, StorageTextureAccess::WriteOnly),
+                ),
+            ),
+            reconstruct_view_layout: BindGroupLayoutDescriptor::new(
+                "diffuse_gi_rh_reconstruct_view_layout",
+                &BindGroupLayoutEntries::sequential(
+                    ShaderStages::FRAGMENT,
+                    (
+                        uniform_buffer::<ViewUniform>(true),
+                        texture_depth_2d(),
+                        texture_2d(TextureSampleType::Uint),
+                    ),
+                ),
+            ),
+            shaders,
+            fullscreen,
+        }
+    }
+}
+
+fn sh_def(order: ShOrder) -> ShaderDefVal {
+    ShaderDefVal::UInt("SH_COEFS".into(), order.coefficients() as u32)
+}
+
+impl SpecializedComputePipeline for RhPipelines {
+    type Key = RhPipelineKey;
+
+    fn specialize(&self, key: Self::Key) -> ComputePipelineDescriptor {
+        let mut shader_defs = vec![sh_def(key.sh_order)];
+        let (label, layout, shader, entry) = match key.pass {
+            RhPass::Inject { depth_occlusion, voxel_visibility } => {
+                // Groups 2 (occupancy) and 3 (view depth) are always in the layout so the indices stay put.
+                let layout = vec![
+                    self.inject_output_layout.clone(),
+                    self.rsm_layout.clone(),
+                    self.occupancy_layout.clone(),
+                    self.depth_layout.clone(),
+                ];
+                if depth_occlusion {
+                    shader_defs.push("DEPTH_OCCLUSION".into());
+                }
+                if voxel_visibility {
+                    shader_defs.push("VOXEL_VISIBILITY".into());
+                }
+                ("diffuse_gi_rh_inject_pipeline", layout, &self.shaders.inject, "inject")
+            }
+            RhPass::Bounce { paper } => {
+                if paper {
+                    shader_defs.push("SECONDARY_PAPER".into());
+                }
+                (
+                    "diffuse_gi_rh_bounce_pipeline",
+                    vec![
+                        self.bounce_output_layout.clone(),
+                        self.sample_layout.clone(),
+                        self.occupancy_layout.clone(),
+                    ],
+                    &self.shaders.bounce,
+                    "bounce",
+                )
+            }
+            RhPass::Decide => ("diffuse_gi_rh_decide_pipeline", vec![self.decide_layout.clone()], &self.shaders.decide, "decide"),
+            RhPass::Blend => ("diffuse_gi_rh_blend_pipeline", vec![self.blend_layout.clone()], &self.shaders.blend, "blend"),
+            RhPass::Export => (
+                "diffuse_gi_rh_export_pipeline",
+                vec![self.export_layout.clone(), self.sample_layout.clone()],
+                &self.shaders.export,
+                "export_irradiance",
+            ),
+        };
+        ComputePipelineDescriptor {
+            label: Some(label.into()),
+            layout,
+            shader: shader.clone(),
+            shader_defs,
+            entry_point: Some(entry.into()),
+            ..default()
+        }
+    }
+}
+
+impl SpecializedRenderPipeline for RhPipelines {
+    type Key = RhReconstructKey;
+
+    fn specialize(&self, key: Self::Key) -> RenderPipelineDescriptor {
+        let shader_defs = vec![
+            sh_def(key.sh_order),
+            ShaderDefVal::Int("GI_SCALE".into(), if key.half_resolution { 2 } else { 1 }),
+        ];
+        RenderPipelineDescriptor {
+            label: Some("diffuse_gi_rh_reconstruct_pipeline".into()),
+            layout: vec![self.reconstruct_view_layout.clone(), self.sample_layout.clone()],
+            vertex: self.fullscreen.clone(),
+            fragment: Some(FragmentState {
+                shader: self.shaders.reconstruct.clone(),
+                shader_defs,
+                entry_point: Some("reconstruct".into()),
+                targets: vec![Some(ColorTargetState {
+                    format: GI_TARGET_FORMAT,
+                    // Volumes add up; the composite divides by the summed weight in alpha.
+                    blend: Some(BlendState {
+                        color: BlendComponent { src_factor: BlendFactor::One, dst_factor: BlendFactor::One, operation: BlendOperation::Add },
+                        alpha: BlendComponent { src_factor: BlendFactor::One, dst_factor: BlendFactor::One, operation: BlendOperation::Add },
+                    }),
+                    write_mask: ColorWrites::ALL,
+                })],
+            }),
+            ..default()
+        }
+    }
+}
+
+/// What a volume's current result was computed from; a change starts a new round of updates.
+#[derive(Clone, Debug, PartialEq)]
+struct BuildKey {
+    rsm_version: u64,
+    settings: RadianceHintsVolume,
+    transform: [u32; 16],
+    voxel_generation: u64,
+}
+
+/// GPU state of one volume.
+pub struct RhVolumeGpu {
+    pub entity: Entity,
+    pub settings: RadianceHintsVolume,
+    pub world_from_local: Mat4,
+    pub hints: u32,
+    pub workgroups: u32,
+    /// The increments of the last two bounces (ping-pong), the running sum, the displayed result.
+    pub delta: [Buffer; 2],
+    pub sum: Buffer,
+    pub result: Buffer,
+    pub distances: Buffer,
+    /// Per hint: albedo (rgb) and validity (a).
+    pub albedo: Buffer,
+    /// The occupancy bits.
+    pub occupancy: Buffer,
+    pub occupancy_resolution: UVec3,
+    pub partials: Buffer,
+    /// Indirect dispatch arguments, one slot of three `u32` per extra bounce.
+    pub args: Buffer,
+    pub stats: Buffer,
+    allocated_for: (UVec3, ShOrder, u32),
+    voxel_generation: Option<u64>,
+    built_from: Option<BuildKey>,
+    /// Updates still to run before the temporal blend has converged.
+    pub updates_left: u32,
+    /// Whether the next update replaces the result instead of blending into it.
+    pub first_update: bool,
+    /// Updates since the last change of the inputs.
+    pub age: u32,
+    /// Whether the volume runs inject/bounce/blend this frame.
+    pub update_this_frame: bool,
+    /// Dynamic offsets: `[0]` for injection, blending, export and sampling; `[k]` for extra bounce `k`.
+    pub uniform_offsets: Vec<u32>,
+    pub export: Option<Handle<Image>>,
+    pub pipelines: Option<RhVolumePipelines>,
+    pub bind_groups: Option<RhVolumeBindGroups>,
+    /// The export texture written since the last update.
+    export_written: Option<TextureId>,
+}
+
+/// Cached pipeline ids of one volume.
+#[derive(Clone, Copy, Debug)]
+pub struct RhVolumePipelines {
+    pub inject: CachedComputePipelineId,
+    pub bounce: CachedComputePipelineId,
+    pub decide: CachedComputePipelineId,
+    pub blend: CachedComputePipelineId,
+    pub export: CachedComputePipelineId,
+}
+
+/// Bind groups of one volume, rebuilt every frame (the uniform buffer may move).
+pub struct RhVolumeBindGroups {
+    pub inject_output: BindGroup,
+    pub occupancy: BindGroup,
+    /// Reading the displayed result (reconstruction, export, debug views).
+    pub sample_result: BindGroup,
+    /// For extra bounce `k`: output group (writes `delta[k % 2]`) and sample group (reads the other).
+    pub bounce: [(BindGroup, BindGroup); 2],
+    pub decide: BindGroup,
+    pub blend: BindGroup,
+}
+
+/// Every volume's GPU state, their uniforms, and the per-frame bookkeeping.
+#[derive(Resource, Default)]
+pub struct RhVolumesGpu {
+    pub volumes: Vec<RhVolumeGpu>,
+    pub uniforms: DynamicUniformBuffer<RhVolumeUniform>,
+    /// The frame whose volume update has run (the first GI camera of a frame runs it).
+    pub updated_frame: Option<u32>,
+    /// Reconstruction pipelines per key the cameras use this frame.
+    pub reconstruct_pipelines: HashMap<RhReconstructKey, CachedRenderPipelineId>,
+}
+
+/// The weight of an update in the displayed field: everything on the very first update; the temporal
+/// blend on the update that follows a change (and on every update without refinement); then `1/(k+1)`
+/// on the `k`-th still update, which makes the field the running mean of the updates since the change.
+pub fn blend_weight(first_update: bool, age: u32, settings: &RadianceHintsVolume) -> f32 {
+    if first_update {
+        1.0
+    } else if age == 0 || settings.refinement_updates == 0 {
+        settings.temporal_blend
+    } else {
+        (1.0 / (age as f32 + 1.0)).min(settings.temporal_blend.max(0.5))
+    }
+}
+
+/// Updates that bring the temporal blend within 1 % of a new result: `(1 − α)^n ≤ 0.01`.
+pub fn convergence_updates(temporal_blend: f32) -> u32 {
+    let alpha = temporal_blend.clamp(0.05, 1.0);
+    if alpha >= 1.0 {
+        return 1;
+    }
+    ((0.01f32).ln() / (1.0 - alpha).ln()).ceil() as u32 + 1
+}
+
+/// `u32` words of the occupancy bits of a volume with `hints` per axis.
+fn occupancy_words(hints: UVec3) -> u64 {
+    let r = super::voxelize::occupancy_resolution(hints);
+    (r.x as u64 * r.y as u64 * r.z as u64).div_ceil(32)
+}
+
+fn buffer(device: &RenderDevice, label: &'static str, size: u64, usage: BufferUsages) -> Buffer {
+    device.create_buffer(&BufferDescriptor {
+        label: Some(label),
+        size: size.max(16),
+        usage,
+        mapped_at_creation: false,
+    })
+}
+
+impl RhVolumeGpu {
+    fn new(device: &RenderDevice, entity: Entity, settings: &RadianceHintsVolume) -> Self {
+        let hints = settings.hint_count();
+        let workgroups = hints.div_ceil(WORKGROUP_SIZE);
+        let sh_bytes = hints as u64 * sh_floats(settings.sh_order) as u64 * 4;
+        let storage = BufferUsages::STORAGE | BufferUsages::COPY_DST | BufferUsages::COPY_SRC;
+        Self {
+            entity,
+            settings: settings.clone(),
+            world_from_local: Mat4::IDENTITY,
+            hints,
+            workgroups,
+            delta: [
+                buffer(device, "diffuse_gi_rh_delta_a", sh_bytes, storage),
+                buffer(device, "diffuse_gi_rh_delta_b", sh_bytes, storage),
+            ],
+            sum: buffer(device, "diffuse_gi_rh_sum", sh_bytes, storage),
+            result: buffer(device, "diffuse_gi_rh_result", sh_bytes, storage | BufferUsages::COPY_SRC),
+            distances: buffer(device, "diffuse_gi_rh_distances", hints as u64 * 16, storage),
+            albedo: buffer(device, "diffuse_gi_rh_albedo", hints as u64 * 16, storage),
+            occupancy: buffer(
+                device,
+                "diffuse_gi_rh_occupancy",
+                occupancy_words(settings.resolution) * 4,
+                storage,
+            ),
+            occupancy_resolution: super::voxelize::occupancy_resolution(settings.resolution),
+            partials: buffer(device, "diffuse_gi_rh_partials", workgroups as u64 * 8, storage),
+            args: buffer(
+                device,
+                "diffuse_gi_rh_bounce_args",
+                (settings.extra_bounces.max(1) as u64 + 1) * 12,
+                storage | BufferUsages::INDIRECT,
+            ),
+            stats: buffer(device, "diffuse_gi_rh_stats", 16, storage | BufferUsages::COPY_SRC),
+            allocated_for: (settings.resolution, settings.sh_order, settings.extra_bounces),
+            voxel_generation: None,
+            built_from: None,
+            updates_left: 0,
+            first_update: true,
+            age: 0,
+            update_this_frame: false,
+            uniform_offsets: Vec::new(),
+            export: None,
+            pipelines: None,
+            bind_groups: None,
+            export_written: None,
+        }
+    }
+
+    /// Whether the export texture `image` already holds the current result.
+    pub fn export_written(&self, image: &bevy::render::texture::GpuImage) -> bool {
+        self.export_written == Some(image.texture.id())
+    }
+
+    pub fn mark_export_written(&mut self, image: &bevy::render::texture::GpuImage) {
+        self.export_written = Some(image.texture.id());
+    }
+
+    /// Bytes of GPU memory the volume's buffers hold.
+    pub fn memory_bytes(&self) -> u64 {
+        [&self.delta[0], &self.delta[1], &self.sum, &self.result, &self.distances, &self.albedo, &self.occupancy]
+            .iter()
+            .map(|b| b.size())
+            .sum()
+    }
+}
+
+#[expect(clippy::too_many_arguments, reason = "prepares every per-volume GPU input")]
+pub(crate) fn prepare_rh_volumes(
+    extracted: Res<ExtractedRhVolumes>,
+    atlas: Res<RsmAtlas>,
+    mut state: ResMut<RhVolumesGpu>,
+    pipelines: Res<RhPipelines>,
+    mut specialized: ResMut<SpecializedComputePipelines<RhPipelines>>,
+    mut specialized_render: ResMut<SpecializedRenderPipelines<RhPipelines>>,
+    pipeline_cache: Res<PipelineCache>,
+    cameras: Query<&ExtractedDiffuseGi>,
+    device: Res<RenderDevice>,
+    queue: Res<RenderQueue>,
+    frame: Res<FrameCount>,
+) {
+    let state = &mut *state;
+    let previous = std::mem::take(&mut state.volumes);
+    let mut previous: HashMap<Entity, RhVolumeGpu> = previous.into_iter().map(|v| (v.entity, v)).collect();
+    state.uniforms.clear();
+    let light_count = atlas.slots.len() as u32;
+
+    for (index, volume) in extracted.volumes.iter().enumerate() {
+        let s = &volume.settings;
+        let mut gpu = match previous.remove(&volume.entity) {
+            Some(gpu) if gpu.allocated_for == (s.resolution, s.sh_order, s.extra_bounces) => gpu,
+            _ => RhVolumeGpu::new(&device, volume.entity, s),
+        };
+        gpu.settings = s.clone();
+        gpu.world_from_local = volume.world_from_local;
+        gpu.export = volume.export.clone();
+
+        // The voxelised scene, uploaded when it changes. Until the first voxelisation arrives: white
+        // albedo, every hint valid, nothing occupied.
+        let voxel_generation = volume.voxels.as_ref().map_or(0, |(g, _)| *g);
+        if gpu.voxel_generation != Some(voxel_generation) {
+            let fitting = volume.voxels.as_ref().filter(|(_, v)| {
+                v.albedo_validity.len() == gpu.hints as usize && v.occupancy_resolution == gpu.occupancy_resolution
+            });
+            let albedo: Vec<[f32; 4]> = match fitting {
+                Some((_, v)) => v.albedo_validity.iter().map(|a| a.to_array()).collect(),
+                None => vec![[1.0, 1.0, 1.0, 1.0]; gpu.hints as usize],
+            };
+            queue.write_buffer(&gpu.albedo, 0, bytemuck::cast_slice(&albedo));
+            let words = occupancy_words(s.resolution) as usize;
+            let occupancy = match fitting {
+                Some((_, v)) => v.occupancy.clone(),
+                None => vec![0u32; words],
+            };
+            queue.write_buffer(&gpu.occupancy, 0, bytemuck::cast_slice(&occupancy));
+            gpu.voxel_generation = Some(voxel_generation);
+        }
+
+        let key = BuildKey {
+            rsm_version: atlas.version,
+            settings: s.clone(),
+            transform: volume.world_from_local.to_cols_array().map(f32::to_bits),
+            voxel_generation,
+        };
+        // §8 occlusion depends on the camera: recompute every frame.
+        if gpu.built_from.as_ref() != Some(&key) || s.depth_occlusion.is_some() {
+            gpu.updates_left = convergence_updates(s.temporal_blend).max(s.refinement_updates + 1);
+            gpu.age = 0;
+            gpu.built_from = Some(key);
+        }
+        gpu.update_this_frame = gpu.updates_left > 0;
+
+        // Uniforms: one for injection/blend/sampling, one per extra bounce.
+        let size = (volume.world_from_local * Vec4::new(1.0, 0.0, 0.0, 0.0)).truncate().length();
+        let size_y = (volume.world_from_local * Vec4::new(0.0, 1.0, 0.0, 0.0)).truncate().length();
+        let size_z = (volume.world_from_local * Vec4::new(0.0, 0.0, 1.0, 0.0)).truncate().length();
+        let extent = Vec3::new(size, size_y, size_z);
+        let cell = extent / s.resolution.as_vec3();
+        let base_seed = frame.0.wrapping_mul(0x9E37_79B9) ^ (index as u32).wrapping_mul(0x85EB_CA6B);
+        let mut uniform = RhVolumeUniform {
+            world_from_local: volume.world_from_local,
+            local_from_world: volume.world_from_local.inverse(),
+            resolution: s.resolution.extend(gpu.hints),
+            cell: cell.extend(cell.length()),
+            r_max: s.effective_r_max(extent),
+            jitter: s.jitter,
+            rsm_samples: s.rsm_samples,
+            light_count,
+            secondary_samples: s.secondary_samples,
+            seed: base_seed,
+            coverage: s.rsm_coverage,
+            temporal_blend: blend_weight(gpu.first_update, gpu.age, s),
+            intensity: s.intensity,
+            bounce_threshold: s.bounce_threshold,
+            albedo_volume: s.albedo_volume as u32,
+            depth_occlusion_samples: s.depth_occlusion.map_or(0, |o| o.samples),
+            depth_occlusion_strength: s.depth_occlusion.map_or(0.0, |o| o.strength),
+            reconstruction_samples: s.reconstruction_samples,
+            workgroups: gpu.workgroups,
+            bounce: 0,
+            occupancy_resolution: gpu.occupancy_resolution.extend(0),
+        };
+        gpu.uniform_offsets.clear();
+        gpu.uniform_offsets.push(state.uniforms.push(&uniform));
+        for k in 1..=s.extra_bounces {
+            uniform.bounce = k;
+            uniform.seed = base_seed ^ k.wrapping_mul(0xC2B2_AE35);
+            gpu.uniform_offsets.push(state.uniforms.push(&uniform));
+        }
+
+        if gpu.update_this_frame {
+            // The first extra bounce always runs; the decide pass opens or closes the next ones.
+            let mut args = vec![0u32; 3 * (s.extra_bounces.max(1) as usize + 1)];
+            args[0] = gpu.workgroups;
+            for slot in args.chunks_mut(3) {
+                slot[1] = 1;
+                slot[2] = 1;
+            }
+            queue.write_buffer(&gpu.args, 0, bytemuck::cast_slice(&args));
+        }
+
+        let mut specialize = |pass| specialized.specialize(&pipeline_cache, &pipelines, RhPipelineKey { pass, sh_order: s.sh_order });
+        gpu.pipelines = Some(RhVolumePipelines {
+            inject: specialize(RhPass::Inject {
+                depth_occlusion: s.depth_occlusion.is_some(),
+                voxel_visibility: s.voxel_visibility,
+            }),
+            bounce: specialize(RhPass::Bounce {
+                paper: s.secondary == super::settings::SecondaryTransport::Paper,
+            }),
+            decide: specialize(RhPass::Decide),
+            blend: specialize(RhPass::Blend),
+            export: specialize(RhPass::Export),
+        });
+        state.volumes.push(gpu);
+    }
+    state.uniforms.write_buffer(&device, &queue);
+
+    state.reconstruct_pipelines.clear();
+    for camera in &cameras {
+        for order in state.volumes.iter().map(|v| v.settings.sh_order).collect::<Vec<_>>() {
+            let key = RhReconstructKey { sh_order: order, half_resolution: camera.0.half_resolution };
+            let id = specialized_render.specialize(&pipeline_cache, &pipelines, key);
+            state.reconstruct_pipelines.insert(key, id);
+        }
+    }
+}
+
+pub(crate) fn prepare_rh_bind_groups(
+    mut state: ResMut<RhVolumesGpu>,
+    pipelines: Res<RhPipelines>,
+    pipeline_cache: Res<PipelineCache>,
+    device: Res<RenderDevice>,
+) {
+    let state = &mut *state;
+    let Some(uniform) = state.uniforms.binding() else {
+        return;
+    };
+    let layout = |l: &BindGroupLayoutDescriptor| pipeline_cache.get_bind_group_layout(l);
+    for v in &mut state.volumes {
+        let sample = |source: &Buffer| {
+            device.create_bind_group(
+                "diffuse_gi_rh_sample_bind_group",
+                &layout(&pipelines.sample_layout),
+                &BindGroupEntries::sequential((
+                    uniform.clone(),
+                    source.as_entire_binding(),
+                    v.distances.as_entire_binding(),
+                    v.albedo.as_entire_binding(),
+                )),
+            )
+        };
+        let bounce_output = |out: &Buffer| {
+            device.create_bind_group(
+                "diffuse_gi_rh_bounce_output_bind_group",
+                &layout(&pipelines.bounce_output_layout),
+                &BindGroupEntries::sequential((
+                    out.as_entire_binding(),
+                    v.sum.as_entire_binding(),
+                    v.partials.as_entire_binding(),
+                )),
+            )
+        };
+        v.bind_groups = Some(RhVolumeBindGroups {
+            inject_output: device.create_bind_group(
+                "diffuse_gi_rh_inject_output_bind_group",
+                &layout(&pipelines.inject_output_layout),
+                &BindGroupEntries::sequential((
+                    uniform.clone(),
+                    v.delta[0].as_entire_binding(),
+                    v.sum.as_entire_binding(),
+                    v.distances.as_entire_binding(),
+                    v.albedo.as_entire_binding(),
+                )),
+            ),
+            occupancy: device.create_bind_group(
+                "diffuse_gi_rh_occupancy_bind_group",
+                &layout(&pipelines.occupancy_layout),
+                &BindGroupEntries::single(v.occupancy.as_entire_binding()),
+            ),
+            sample_result: sample(&v.result),
+            // Bounce k writes delta[k % 2] and reads delta[(k − 1) % 2].
+            bounce: [
+                (bounce_output(&v.delta[0]), sample(&v.delta[1])),
+                (bounce_output(&v.delta[1]), sample(&v.delta[0])),
+            ],
+            decide: device.create_bind_group(
+                "diffuse_gi_rh_decide_bind_group",
+                &layout(&pipelines.decide_layout),
+                &BindGroupEntries::sequential((
+                    uniform.clone(),
+                    v.partials.as_entire_binding(),
+                    v.args.as_entire_binding(),
+                    v.stats.as_entire_binding(),
+                )),
+            ),
+            blend: device.create_bind_group(
+                "diffuse_gi_rh_blend_bind_group",
+                &layout(&pipelines.blend_layout),
+                &BindGroupEntries::sequential((uniform.clone(), v.sum.as_entire_binding(), v.result.as_entire_binding())),
+            ),
+        });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn still_updates_average_and_changes_blend() {
+        let s = RadianceHintsVolume::MEDIUM;
+        assert_eq!(blend_weight(true, 5, &s), 1.0);
+        assert_eq!(blend_weight(false, 0, &s), s.temporal_blend);
+        // A running mean after a change: weights 1/2, 1/3, 1/4…
+        for k in 1..10u32 {
+            assert!((blend_weight(false, k, &s) - 1.0 / (k as f32 + 1.0)).abs() < 1e-6);
+        }
+        let no_refinement = RadianceHintsVolume { refinement_updates: 0, ..s };
+        assert_eq!(blend_weight(false, 7, &no_refinement), s.temporal_blend);
+    }
+
+    #[test]
+    fn convergence_needs_fewer_updates_with_a_larger_blend() {
+        assert_eq!(convergence_updates(1.0), 1);
+        let half = convergence_updates(0.5);
+        assert!(0.5f32.powi(half as i32 - 1) <= 0.01 && half <= 9, "{half}");
+        assert!(convergence_updates(0.1) > half);
+    }
+}

@@ -1,0 +1,234 @@
+//! The `Core3d` systems: the once-per-frame volume update and the per-camera reconstruction.
+
+use bevy::core_pipeline::prepass::ViewPrepassTextures;
+use bevy::diagnostic::FrameCount;
+use bevy::prelude::*;
+use bevy::render::diagnostic::RecordDiagnostics;
+use bevy::render::render_asset::RenderAssets;
+use bevy::render::render_resource::*;
+use bevy::render::renderer::{RenderContext, ViewQuery};
+use bevy::render::texture::GpuImage;
+use bevy::render::view::{ViewUniformOffset, ViewUniforms};
+
+use super::extract::ExtractedDiffuseGi;
+use super::prepare::{RhPipelines, RhReconstructKey, RhVolumesGpu};
+use crate::camera::GiOutput;
+use crate::composite::GiViewTarget;
+use crate::rsm::{RsmAtlas, RsmPipeline, draw_dirty_faces};
+
+/// Redraws the RSMs that changed and updates the volumes that need it, once per frame, in the first GI
+/// camera's `Core3d` run (after its prepass, whose depth the optional §8 occlusion reads).
+#[expect(clippy::too_many_arguments, reason = "the frame's whole volume update")]
+pub(crate) fn update_gi_volumes(
+    view: ViewQuery<(&ExtractedDiffuseGi, &ViewUniformOffset, &ViewPrepassTextures)>,
+    mut state: ResMut<RhVolumesGpu>,
+    mut atlas: ResMut<RsmAtlas>,
+    rsm_pipeline: Res<RsmPipeline>,
+    pipelines: Res<RhPipelines>,
+    pipeline_cache: Res<PipelineCache>,
+    view_uniforms: Res<ViewUniforms>,
+    images: Res<RenderAssets<GpuImage>>,
+    frame: Res<FrameCount>,
+    mut ctx: RenderContext,
+) {
+    if state.updated_frame == Some(frame.0) {
+        return;
+    }
+    state.updated_frame = Some(frame.0);
+    let (_, view_offset, prepass) = view.into_inner();
+    let device = ctx.render_device().clone();
+    let diagnostics = ctx.diagnostic_recorder();
+    let diagnostics = diagnostics.as_deref();
+
+    // Reflective shadow maps of the lights (or geometry) that changed.
+    if !atlas.dirty_faces.is_empty()
+        && let (Some(pipeline), Some(uniforms)) =
+            (pipeline_cache.get_render_pipeline(rsm_pipeline.pipeline), atlas.face_uniforms.binding())
+    {
+        let bind_group = device.create_bind_group(
+            "diffuse_gi_rsm_bind_group",
+            &pipeline_cache.get_bind_group_layout(&rsm_pipeline.layout),
+            &BindGroupEntries::single(uniforms),
+        );
+        let span = diagnostics.time_span(ctx.command_encoder(), "diffuse_gi/rsm");
+        draw_dirty_faces(&mut atlas, pipeline, &bind_group, ctx.command_encoder());
+        span.end(ctx.command_encoder());
+    }
+
+    if !state.volumes.iter().any(|v| v.update_this_frame || v.export.is_some()) {
+        return;
+    }
+    let rsm_bind_group = device.create_bind_group(
+        "diffuse_gi_rh_rsm_bind_group",
+        &pipeline_cache.get_bind_group_layout(&pipelines.rsm_layout),
+        &BindGroupEntries::sequential((
+            &atlas.position_view,
+            &atlas.normal_view,
+            &atlas.flux_view,
+            atlas.lights.binding().expect("written in prepare_rsm"),
+        )),
+    );
+    let depth_bind_group = match (view_uniforms.uniforms.binding(), prepass.depth_view()) {
+        (Some(uniforms), Some(depth)) => Some(device.create_bind_group(
+            "diffuse_gi_rh_depth_bind_group",
+            &pipeline_cache.get_bind_group_layout(&pipelines.depth_layout),
+            &BindGroupEntries::sequential((uniforms, depth)),
+        )),
+        _ => None,
+    };
+
+    let state = &mut *state;
+    for v in &mut state.volumes {
+        let (Some(groups), Some(ids)) = (v.bind_groups.as_ref(), v.pipelines) else {
+            continue;
+        };
+        let base = v.uniform_offsets[0];
+        if v.update_this_frame {
+            let (Some(inject), Some(bounce), Some(decide), Some(blend)) = (
+                pipeline_cache.get_compute_pipeline(ids.inject),
+                pipeline_cache.get_compute_pipeline(ids.bounce),
+                pipeline_cache.get_compute_pipeline(ids.decide),
+                pipeline_cache.get_compute_pipeline(ids.blend),
+            ) else {
+                continue;
+            };
+
+            let span = diagnostics.time_span(ctx.command_encoder(), "diffuse_gi/rh_inject");
+            {
+                let mut pass = ctx.command_encoder().begin_compute_pass(&ComputePassDescriptor {
+                    label: Some("diffuse_gi_rh_inject"),
+                    timestamp_writes: None,
+                });
+                pass.set_pipeline(inject);
+                pass.set_bind_group(0, &groups.inject_output, &[base]);
+                pass.set_bind_group(1, &rsm_bind_group, &[]);
+                pass.set_bind_group(2, &groups.occupancy, &[]);
+                // The layout always has group 3; without §8 any view's depth will do (the shader ignores it).
+                let Some(depth) = &depth_bind_group else {
+                    continue;
+                };
+                pass.set_bind_group(3, depth, &[view_offset.offset]);
+                pass.dispatch_workgroups(v.workgroups, 1, 1);
+            }
+            span.end(ctx.command_encoder());
+
+            let span = diagnostics.time_span(ctx.command_encoder(), "diffuse_gi/rh_bounce");
+            {
+                let mut pass = ctx.command_encoder().begin_compute_pass(&ComputePassDescriptor {
+                    label: Some("diffuse_gi_rh_bounce"),
+                    timestamp_writes: None,
+                });
+                for k in 1..=v.settings.extra_bounces {
+                    let offset = v.uniform_offsets[k as usize];
+                    let (output, sample) = &groups.bounce[(k % 2) as usize];
+                    pass.set_pipeline(bounce);
+                    pass.set_bind_group(0, output, &[]);
+                    pass.set_bind_group(1, sample, &[offset]);
+                    pass.set_bind_group(2, &groups.occupancy, &[]);
+                    // Dispatched with zero workgroups once a bounce added too little (see decide.wgsl).
+                    pass.dispatch_workgroups_indirect(&v.args, 12 * (k as u64 - 1));
+                    pass.set_pipeline(decide);
+                    pass.set_bind_group(0, &groups.decide, &[offset]);
+                    pass.dispatch_workgroups(1, 1, 1);
+                }
+                pass.set_pipeline(blend);
+                pass.set_bind_group(0, &groups.blend, &[base]);
+                pass.dispatch_workgroups(v.workgroups, 1, 1);
+            }
+            span.end(ctx.command_encoder());
+            v.updates_left = v.updates_left.saturating_sub(1);
+            v.first_update = false;
+            v.age += 1;
+        }
+
+        // The IrradianceVolume export, when a camera uses it.
+        if let Some(image) = v.export.as_ref().and_then(|h| images.get(h))
+            && let Some(export) = pipeline_cache.get_compute_pipeline(ids.export)
+            && (v.update_this_frame || !v.export_written(image))
+        {
+            let storage_view = image.texture.create_view(&TextureViewDescriptor {
+                label: Some("diffuse_gi_rh_export_view"),
+                dimension: Some(TextureViewDimension::D3),
+                ..default()
+            });
+            let output = device.create_bind_group(
+                "diffuse_gi_rh_export_bind_group",
+                &pipeline_cache.get_bind_group_layout(&pipelines.export_layout),
+                &BindGroupEntries::single(&storage_view),
+            );
+            let mut pass = ctx.command_encoder().begin_compute_pass(&ComputePassDescriptor {
+                label: Some("diffuse_gi_rh_export"),
+                timestamp_writes: None,
+            });
+            pass.set_pipeline(export);
+            pass.set_bind_group(0, &output, &[]);
+            pass.set_bind_group(1, &groups.sample_result, &[base]);
+            pass.dispatch_workgroups(v.workgroups, 1, 1);
+            drop(pass);
+            v.mark_export_written(image);
+        }
+    }
+}
+
+/// Reconstructs the indirect light of every volume into the camera's GI target (§5, Eq. 6–7).
+pub(crate) fn reconstruct_gi(
+    view: ViewQuery<(&ExtractedDiffuseGi, &ViewUniformOffset, &ViewPrepassTextures, &GiViewTarget)>,
+    state: Res<RhVolumesGpu>,
+    pipelines: Res<RhPipelines>,
+    pipeline_cache: Res<PipelineCache>,
+    view_uniforms: Res<ViewUniforms>,
+    mut ctx: RenderContext,
+) {
+    let (gi, view_offset, prepass, target) = view.into_inner();
+    if gi.0.output != GiOutput::Composite {
+        return;
+    }
+    let (Some(uniforms), Some(depth), Some(gbuffer)) =
+        (view_uniforms.uniforms.binding(), prepass.depth_view(), prepass.deferred_view())
+    else {
+        return;
+    };
+    let view_group = ctx.render_device().create_bind_group(
+        "diffuse_gi_rh_reconstruct_view_bind_group",
+        &pipeline_cache.get_bind_group_layout(&pipelines.reconstruct_view_layout),
+        &BindGroupEntries::sequential((uniforms, depth, gbuffer)),
+    );
+    let diagnostics = ctx.diagnostic_recorder();
+    let diagnostics = diagnostics.as_deref();
+    let span = diagnostics.time_span(ctx.command_encoder(), "diffuse_gi/rh_reconstruct");
+    {
+        let mut pass = ctx.begin_tracked_render_pass(RenderPassDescriptor {
+            label: Some("diffuse_gi_rh_reconstruct"),
+            color_attachments: &[Some(RenderPassColorAttachment {
+                view: &target.texture.default_view,
+                depth_slice: None,
+                resolve_target: None,
+                ops: Operations {
+                    load: LoadOp::Clear(default()),
+                    store: StoreOp::Store,
+                },
+            })],
+            depth_stencil_attachment: None,
+            timestamp_writes: None,
+            occlusion_query_set: None,
+            multiview_mask: None,
+        });
+        for v in &state.volumes {
+            let key = RhReconstructKey {
+                sh_order: v.settings.sh_order,
+                half_resolution: gi.0.half_resolution,
+            };
+            let (Some(pipeline), Some(groups)) = (
+                state.reconstruct_pipelines.get(&key).and_then(|id| pipeline_cache.get_render_pipeline(*id)),
+                v.bind_groups.as_ref(),
+            ) else {
+                continue;
+            };
+            pass.set_render_pipeline(pipeline);
+            pass.set_bind_group(0, &view_group, &[view_offset.offset]);
+            pass.set_bind_group(1, &groups.sample_result, &[v.uniform_offsets[0]]);
+            pass.draw(0..3, 0..1);
+        }
+    }
+    span.end(ctx.command_encoder());
+}

@@ -1,0 +1,164 @@
+//! The live tuning panel (feature `egui`): every GI camera, volume and light, with the per-pass GPU times.
+//!
+//! ```no_run
+//! # use bevy::prelude::*;
+//! # use bevy_diffuse_gi::prelude::*;
+//! App::new().add_plugins((DefaultPlugins, DiffuseGiPlugin::default(), DiffuseGiInspectorPlugin));
+//! ```
+//! Adds `bevy_egui`'s `EguiPlugin` unless the app already has it. The panel draws on egui's primary
+//! context (by default the first camera spawned).
+
+use bevy::diagnostic::DiagnosticsStore;
+use bevy::prelude::*;
+use bevy_egui::{EguiContexts, EguiPlugin, EguiPrimaryContextPass, egui};
+
+use crate::camera::{DiffuseGi, GiDebugView, GiOutput};
+use crate::light::GiLight;
+use crate::radiance_hints::{DepthOcclusion, RadianceHintsVolume};
+use crate::sh::ShOrder;
+
+/// Adds the "Diffuse GI" window.
+pub struct DiffuseGiInspectorPlugin;
+
+impl Plugin for DiffuseGiInspectorPlugin {
+    fn build(&self, app: &mut App) {
+        if !app.is_plugin_added::<EguiPlugin>() {
+            app.add_plugins(EguiPlugin::default());
+        }
+        app.add_systems(EguiPrimaryContextPass, inspector_ui);
+    }
+}
+
+fn inspector_ui(
+    mut contexts: EguiContexts,
+    mut cameras: Query<(Entity, Option<&Name>, &mut DiffuseGi)>,
+    mut volumes: Query<(Entity, Option<&Name>, &mut RadianceHintsVolume)>,
+    mut lights: Query<(Entity, Option<&Name>, &mut GiLight)>,
+    diagnostics: Option<Res<DiagnosticsStore>>,
+) -> Result {
+    let label = |entity: Entity, name: Option<&Name>| name.map_or_else(|| format!("{entity}"), |n| n.to_string());
+    egui::Window::new("Diffuse GI").default_width(330.0).show(contexts.ctx_mut()?, |ui| {
+        egui::CollapsingHeader::new("Cameras").default_open(true).show(ui, |ui| {
+            for (entity, name, mut gi) in &mut cameras {
+                ui.label(label(entity, name));
+                let mut g = gi.clone();
+                ui.checkbox(&mut g.enabled, "bounced light (G)");
+                egui::ComboBox::from_label("debug view (V)")
+                    .selected_text(format!("{:?}", g.debug_view))
+                    .show_ui(ui, |ui| {
+                        for view in GiDebugView::ALL {
+                            ui.selectable_value(&mut g.debug_view, view, format!("{view:?}"));
+                        }
+                    });
+                egui::ComboBox::from_label("output")
+                    .selected_text(format!("{:?}", g.output))
+                    .show_ui(ui, |ui| {
+                        ui.selectable_value(&mut g.output, GiOutput::Composite, "Composite (per pixel)");
+                        ui.selectable_value(&mut g.output, GiOutput::IrradianceVolume, "IrradianceVolume");
+                    });
+                ui.checkbox(&mut g.half_resolution, "half-resolution reconstruction");
+                if g != *gi {
+                    *gi = g;
+                }
+                ui.separator();
+            }
+        });
+        egui::CollapsingHeader::new("Radiance Hints volumes").default_open(true).show(ui, |ui| {
+            for (entity, name, mut volume) in &mut volumes {
+                ui.push_id(entity, |ui| volume_ui(ui, &label(entity, name), &mut volume));
+                ui.separator();
+            }
+        });
+        egui::CollapsingHeader::new("GI lights").show(ui, |ui| {
+            for (entity, name, mut light) in &mut lights {
+                let mut r = light.rsm_resolution;
+                ui.add(
+                    egui::Slider::new(&mut r, GiLight::MIN_RSM_RESOLUTION..=GiLight::MAX_RSM_RESOLUTION)
+                        .logarithmic(true)
+                        .text(format!("{} RSM size", label(entity, name))),
+                );
+                if r != light.rsm_resolution {
+                    light.rsm_resolution = r;
+                }
+            }
+        });
+        egui::CollapsingHeader::new("GPU passes (ms)").default_open(true).show(ui, |ui| {
+            let Some(store) = diagnostics else {
+                ui.label("no diagnostics (add RenderDiagnosticsPlugin)");
+                return;
+            };
+            let mut rows: Vec<(String, f64)> = store
+                .iter()
+                .filter_map(|d| {
+                    let path = d.path().as_str();
+                    let pass = path.strip_prefix("render/diffuse_gi/")?.strip_suffix("/elapsed_gpu")?;
+                    Some((pass.to_string(), d.smoothed()?))
+                })
+                .collect();
+            rows.sort_by(|a, b| a.0.cmp(&b.0));
+            if rows.is_empty() {
+                ui.label("no GPU timings (timestamp queries unavailable, or no pass ran)");
+            }
+            for (pass, ms) in rows {
+                ui.label(format!("{pass:<16} {ms:7.3}"));
+            }
+        });
+    });
+    Ok(())
+}
+
+fn volume_ui(ui: &mut egui::Ui, label: &str, volume: &mut Mut<RadianceHintsVolume>) {
+    ui.label(label);
+    let mut v = (**volume).clone();
+    ui.horizontal(|ui| {
+        for (name, preset) in [
+            ("Low", RadianceHintsVolume::LOW),
+            ("Medium", RadianceHintsVolume::MEDIUM),
+            ("High", RadianceHintsVolume::HIGH),
+        ] {
+            if ui.button(name).clicked() {
+                v = preset;
+            }
+        }
+    });
+    ui.horizontal(|ui| {
+        ui.label("hints");
+        for axis in 0..3 {
+            ui.add(egui::DragValue::new(&mut v.resolution[axis]).range(2..=128));
+        }
+    });
+    ui.horizontal(|ui| {
+        ui.label("SH order");
+        ui.radio_value(&mut v.sh_order, ShOrder::Two, "2 (4 coeffs)");
+        ui.radio_value(&mut v.sh_order, ShOrder::Three, "3 (9 coeffs)");
+    });
+    ui.add(egui::Slider::new(&mut v.rsm_samples, 1..=512).logarithmic(true).text("RSM samples N_s"));
+    ui.add(egui::Slider::new(&mut v.rsm_coverage, 0.01..=1.0).text("coverage c_RSM (directional)"));
+    ui.add(egui::Slider::new(&mut v.jitter, 0.0..=1.0).text("jitter (cells)"));
+    ui.add(egui::Slider::new(&mut v.extra_bounces, 0..=8).text("extra bounces"));
+    ui.add(egui::Slider::new(&mut v.secondary_samples, 1..=128).text("secondary samples N_b"));
+    ui.add(egui::Slider::new(&mut v.r_max, 0.0..=50.0).text("r_max (m, 0 = auto)"));
+    ui.add(egui::Slider::new(&mut v.bounce_threshold, 0.0..=0.2).text("bounce stop threshold"));
+    ui.add(egui::Slider::new(&mut v.temporal_blend, 0.05..=1.0).text("temporal blend"));
+    ui.checkbox(&mut v.albedo_volume, "albedo volume (coloured extra bounces)");
+    let mut occlusion = v.depth_occlusion.is_some();
+    ui.checkbox(&mut occlusion, "§8 camera-depth occlusion");
+    match (occlusion, &mut v.depth_occlusion) {
+        (true, Some(o)) => {
+            ui.add(egui::Slider::new(&mut o.samples, 1..=16).text("occlusion steps"));
+            ui.add(egui::Slider::new(&mut o.strength, 0.0..=1.0).text("occlusion strength"));
+        }
+        (true, None) => v.depth_occlusion = Some(DepthOcclusion::default()),
+        (false, _) => v.depth_occlusion = None,
+    }
+    ui.add(egui::Slider::new(&mut v.reconstruction_samples, 1..=16).text("reconstruction samples N_RH"));
+    ui.add(egui::Slider::new(&mut v.intensity, 0.0..=4.0).text("intensity"));
+    ui.label(format!(
+        "{} hints, {:.2} MiB",
+        v.hint_count(),
+        v.memory_bytes() as f64 / (1024.0 * 1024.0)
+    ));
+    if v != **volume {
+        **volume = v;
+    }
+}
