@@ -38,7 +38,9 @@ use bevy::window::ExitCondition;
 use bevy::winit::WinitPlugin;
 use serde_json::{Value, json};
 
+use crate::camera::{DiffuseGi, GiDebugView};
 use crate::hdr_image::HdrImage;
+use crate::radiance_hints::RadianceHintsVolume;
 use crate::scene::SceneSnapshot;
 use crate::scenes::{SceneCamera, SceneStatus, StandardScene, StandardScenesPlugin, spawn_standard_scene};
 
@@ -196,7 +198,7 @@ fn build_app(options: &HeadlessOptions, outcome: Arc<Mutex<Outcome>>) -> App {
         .add_plugins((
             ScheduleRunnerPlugin::run_loop(Duration::ZERO),
             RenderDiagnosticsPlugin,
-            crate::DiffuseGiPlugin,
+            crate::DiffuseGiPlugin::default(),
             StandardScenesPlugin,
         ))
         .insert_resource(DefaultOpaqueRendererMethod::deferred())
@@ -220,6 +222,9 @@ fn build_app(options: &HeadlessOptions, outcome: Arc<Mutex<Outcome>>) -> App {
     if options.method == HeadlessMethod::Reference {
         app.init_resource::<SceneSnapshot>();
     }
+    if let Some(path) = &options.dump_volume {
+        app.insert_resource(crate::radiance_hints::dump::RhVolumeDump { path: path.clone() });
+    }
     app.insert_resource(Headless {
         options: options.clone(),
         target,
@@ -231,7 +236,7 @@ fn build_app(options: &HeadlessOptions, outcome: Arc<Mutex<Outcome>>) -> App {
         render_start: None,
     })
     .add_systems(Startup, setup)
-    .add_systems(Update, (attach_camera, drive).chain());
+    .add_systems(Update, (attach_camera, spawn_rh_volume, drive).chain());
     app
 }
 
@@ -277,7 +282,58 @@ fn attach_camera(
             DepthPrepass,
             DeferredPrepass,
         ));
+        if headless.options.method == HeadlessMethod::RadianceHints {
+            let o = &headless.options;
+            commands.entity(entity).insert(DiffuseGi {
+                debug_view: o.debug_view.unwrap_or(if o.indirect_only { GiDebugView::IndirectOnly } else { GiDebugView::None }),
+                half_resolution: o.half_resolution,
+                output: o.gi_output,
+                ..default()
+            });
+        }
     }
+}
+
+/// `--method rh`: once the scene's meshes have bounds, spawns a Radiance Hints volume around them.
+fn spawn_rh_volume(
+    mut commands: Commands,
+    headless: Res<Headless>,
+    status: Res<SceneStatus>,
+    volumes: Query<(), With<RadianceHintsVolume>>,
+    meshes: Query<(&bevy::camera::primitives::Aabb, &GlobalTransform), With<Mesh3d>>,
+) {
+    if headless.options.method != HeadlessMethod::RadianceHints || *status != SceneStatus::Ready || !volumes.is_empty() {
+        return;
+    }
+    let Some((lo, hi)) = scene_bounds(&meshes) else {
+        return;
+    };
+    // A hair larger than the geometry, and never flat.
+    let size = ((hi - lo) * 1.002).max(Vec3::splat(0.05));
+    commands.spawn((
+        headless.options.rh.clone(),
+        Transform::from_translation((lo + hi) * 0.5).with_scale(size),
+        Name::new("headless RH volume"),
+    ));
+}
+
+/// World-space bounds of every mesh, from Bevy's `Aabb`s.
+fn scene_bounds(meshes: &Query<(&bevy::camera::primitives::Aabb, &GlobalTransform), With<Mesh3d>>) -> Option<(Vec3, Vec3)> {
+    let mut bounds: Option<(Vec3, Vec3)> = None;
+    for (aabb, transform) in meshes {
+        for i in 0..8 {
+            let corner = Vec3::from(aabb.center)
+                + Vec3::from(aabb.half_extents)
+                    * Vec3::new(
+                        if i & 1 == 0 { -1.0 } else { 1.0 },
+                        if i & 2 == 0 { -1.0 } else { 1.0 },
+                        if i & 4 == 0 { -1.0 } else { 1.0 },
+                    );
+            let p = transform.transform_point(corner);
+            bounds = Some(bounds.map_or((p, p), |(lo, hi)| (lo.min(p), hi.max(p))));
+        }
+    }
+    bounds
 }
 
 #[expect(clippy::too_many_arguments, reason = "the driver reads every part of the world it reports on")]
@@ -496,6 +552,23 @@ fn sidecar(
         json!({ "ev100": exposure.ev100, "multiplier": exposure.exposure() }),
     );
     map.insert("lights".into(), Value::Array(lights));
+    if o.method == HeadlessMethod::RadianceHints {
+        let (rh, _) = o.rh.sanitized();
+        map.insert(
+            "radiance_hints".into(),
+            json!({
+                "resolution": rh.resolution.to_array(), "sh_order": rh.sh_order.bands(),
+                "rsm_samples": rh.rsm_samples, "rsm_coverage": rh.rsm_coverage, "jitter": rh.jitter,
+                "extra_bounces": rh.extra_bounces, "secondary_samples": rh.secondary_samples, "r_max": rh.r_max,
+                "bounce_threshold": rh.bounce_threshold, "temporal_blend": rh.temporal_blend,
+                "albedo_volume": rh.albedo_volume,
+                "depth_occlusion": rh.depth_occlusion.map(|d| json!({"samples": d.samples, "strength": d.strength})),
+                "reconstruction_samples": rh.reconstruction_samples, "intensity": rh.intensity,
+                "memory_bytes": rh.memory_bytes(), "half_resolution": o.half_resolution,
+                "output": format!("{:?}", o.gi_output),
+            }),
+        );
+    }
     map.insert("gpu_ms".into(), gpu_timings(diagnostics));
     map.insert(
         "device".into(),

@@ -3,8 +3,12 @@
 use std::path::PathBuf;
 
 use bevy::math::UVec2;
+use bevy::prelude::default;
 
+use crate::camera::GiOutput;
+use crate::radiance_hints::{DepthOcclusion, RadianceHintsVolume};
 use crate::scenes::StandardScene;
+use crate::sh::ShOrder;
 
 /// What produces the image.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
@@ -14,16 +18,19 @@ pub enum HeadlessMethod {
     None,
     /// The CPU path tracer ([`crate::reference`]).
     Reference,
+    /// Radiance Hints ([`crate::radiance_hints`]) over a volume fitted to the scene's bounds.
+    RadianceHints,
 }
 
 impl HeadlessMethod {
     /// Every accepted `--method` value.
-    pub const NAMES: &'static [&'static str] = &["none", "reference"];
+    pub const NAMES: &'static [&'static str] = &["none", "reference", "rh"];
 
     pub fn parse(text: &str) -> Result<Self, String> {
         match text {
             "none" => Ok(Self::None),
             "reference" => Ok(Self::Reference),
+            "rh" | "radiance_hints" => Ok(Self::RadianceHints),
             other => Err(format!(
                 "unknown method `{other}`: expected one of {}",
                 Self::NAMES.join(", ")
@@ -35,6 +42,7 @@ impl HeadlessMethod {
         match self {
             Self::None => "none",
             Self::Reference => "reference",
+            Self::RadianceHints => "rh",
         }
     }
 }
@@ -66,6 +74,20 @@ pub struct HeadlessOptions {
     pub burley_direct: bool,
     /// Path tracer only: trace through pixel centres (no pixel filter), as the rasteriser does.
     pub pixel_centers: bool,
+    /// Radiance Hints settings (`--preset` and the `--rh-*` overrides). Out-of-range values are passed
+    /// on: the plugin clamps them with one warning, as it would for a game.
+    #[serde(skip)]
+    pub rh: RadianceHintsVolume,
+    /// GI cameras: reconstruct at half resolution.
+    pub half_resolution: bool,
+    /// GI cameras: where the bounced light goes.
+    #[serde(skip)]
+    pub gi_output: GiOutput,
+    /// Radiance Hints: write the volume's field to this JSON file after the last frame.
+    pub dump_volume: Option<PathBuf>,
+    /// GI cameras: a debug view instead of the image (`--indirect-only` selects `IndirectOnly`).
+    #[serde(skip)]
+    pub debug_view: Option<crate::camera::GiDebugView>,
 }
 
 impl Default for HeadlessOptions {
@@ -83,6 +105,11 @@ impl Default for HeadlessOptions {
             ev100: None,
             burley_direct: false,
             pixel_centers: false,
+            rh: RadianceHintsVolume::default(),
+            half_resolution: false,
+            gi_output: GiOutput::Composite,
+            debug_view: None,
+            dump_volume: None,
         }
     }
 }
@@ -90,21 +117,35 @@ impl Default for HeadlessOptions {
 /// Usage text of the `headless` example.
 pub const USAGE: &str = "\
 usage: headless [--scene cornell|PATH.glb] [--size WxH] [--frames N] [--out FILE.exr]
-                [--method none|reference] [--indirect-only] [--spp N] [--seed S]
+                [--method none|reference|rh] [--indirect-only] [--spp N] [--seed S]
                 [--max-bounces N] [--ev100 EV] [--burley-direct] [--pixel-centers]
+                [--preset low|medium|high] [--rh-resolution N|XxYxZ] [--rh-order 2|3]
+                [--rh-samples N] [--rh-bounces N] [--rh-secondary N] [--rh-rmax M]
+                [--rh-coverage C] [--rh-jitter J] [--rh-blend A] [--rh-threshold T]
+                [--rh-albedo on|off] [--rh-depth-occlusion STEPS] [--rh-reconstruction N]
+                [--rh-visibility voxels|none] [--rh-secondary-transport voxel|paper] [--rh-refinement N]
+                [--dump-volume FILE.json]
+                [--half-res] [--gi-output composite|irradiance-volume] [--debug-view VIEW]
 
   --scene          a standard scene name or a glTF 2.0 file            (default cornell)
   --size           image size in pixels, 1..=8192 each                  (default 256x256)
   --frames         frames to render once the scene shows, before the image is kept (default 8)
   --out            the linear float EXR to write; FILE.json goes beside it (default out/render.exr)
-  --method         none = Bevy's direct light; reference = CPU path tracer (default none)
+  --method         none = Bevy's direct light; reference = CPU path tracer;
+                   rh = Radiance Hints over a volume fitted to the scene    (default none)
   --indirect-only  write only the indirect light the method adds
   --spp            path-tracer samples per pixel, 1..=1048576            (default 2048)
   --seed           path-tracer random seed                               (default 0)
   --max-bounces    path tracer: keep indirect light of at most N bounces (default all)
   --ev100          exposure override in EV100                            (default: the scene's)
   --burley-direct  path tracer: shade direct light with Bevy's Burley lobe (for the direct check)
-  --pixel-centers  path tracer: one ray through each pixel centre, no pixel filter (for the direct check)";
+  --pixel-centers  path tracer: one ray through each pixel centre, no pixel filter (for the direct check)
+  --preset         Radiance Hints preset                                 (default medium)
+  --rh-*           override one RadianceHintsVolume field (see its docs); the plugin clamps
+                   out-of-range values with a warning. --rh-depth-occlusion 0 turns §8 off
+  --half-res       reconstruct the bounced light at half resolution
+  --gi-output      composite (per pixel, default) or irradiance-volume (Bevy's light probe)
+  --debug-view     rh: indirect, irradiance, hint-grid, rsm-flux, rsm-normal or rsm-position";
 
 fn value<'a>(flag: &str, args: &mut impl Iterator<Item = &'a str>) -> Result<&'a str, String> {
     args.next().ok_or_else(|| format!("{flag} needs a value"))
@@ -122,6 +163,11 @@ where
         return Err(format!("{flag}: {v} is outside {min}..={max}"));
     }
     Ok(v)
+}
+
+/// A number of any value (the plugin validates it, as it would a game's settings).
+fn any_number<T: std::str::FromStr>(flag: &str, text: &str) -> Result<T, String> {
+    text.parse().map_err(|_| format!("{flag}: `{text}` is not a valid number"))
 }
 
 /// Parses the command line (without the program name). Errors name the flag and the problem.
@@ -159,9 +205,100 @@ pub fn parse_args<'a>(args: impl IntoIterator<Item = &'a str>) -> Result<Headles
             }
             "--burley-direct" => options.burley_direct = true,
             "--pixel-centers" => options.pixel_centers = true,
+            "--preset" => {
+                options.rh = match value(flag, &mut args)? {
+                    "low" => RadianceHintsVolume::LOW,
+                    "medium" => RadianceHintsVolume::MEDIUM,
+                    "high" => RadianceHintsVolume::HIGH,
+                    other => return Err(format!("--preset: unknown preset `{other}` (low, medium, high)")),
+                }
+            }
+            "--rh-resolution" => {
+                let text = value(flag, &mut args)?;
+                let parts: Vec<&str> = text.split(['x', 'X']).collect();
+                let n = |t: &str| t.parse::<u32>().map_err(|_| format!("--rh-resolution: `{text}` is not N or XxYxZ"));
+                options.rh.resolution = match parts.as_slice() {
+                    [a] => bevy::math::UVec3::splat(n(a)?),
+                    [x, y, z] => bevy::math::UVec3::new(n(x)?, n(y)?, n(z)?),
+                    _ => return Err(format!("--rh-resolution: `{text}` is not N or XxYxZ")),
+                };
+            }
+            "--rh-order" => {
+                options.rh.sh_order = match value(flag, &mut args)? {
+                    "2" => ShOrder::Two,
+                    "3" => ShOrder::Three,
+                    other => return Err(format!("--rh-order: `{other}` is not 2 or 3")),
+                }
+            }
+            "--rh-samples" => options.rh.rsm_samples = any_number(flag, value(flag, &mut args)?)?,
+            "--rh-bounces" => options.rh.extra_bounces = any_number(flag, value(flag, &mut args)?)?,
+            "--rh-secondary" => options.rh.secondary_samples = any_number(flag, value(flag, &mut args)?)?,
+            "--rh-rmax" => options.rh.r_max = any_number(flag, value(flag, &mut args)?)?,
+            "--rh-coverage" => options.rh.rsm_coverage = any_number(flag, value(flag, &mut args)?)?,
+            "--rh-jitter" => options.rh.jitter = any_number(flag, value(flag, &mut args)?)?,
+            "--rh-blend" => options.rh.temporal_blend = any_number(flag, value(flag, &mut args)?)?,
+            "--rh-threshold" => options.rh.bounce_threshold = any_number(flag, value(flag, &mut args)?)?,
+            "--rh-reconstruction" => options.rh.reconstruction_samples = any_number(flag, value(flag, &mut args)?)?,
+            "--rh-albedo" => {
+                options.rh.albedo_volume = match value(flag, &mut args)? {
+                    "on" => true,
+                    "off" => false,
+                    other => return Err(format!("--rh-albedo: `{other}` is not on or off")),
+                }
+            }
+            "--rh-depth-occlusion" => {
+                let steps: u32 = any_number(flag, value(flag, &mut args)?)?;
+                options.rh.depth_occlusion = (steps > 0).then_some(DepthOcclusion { samples: steps, ..default() });
+            }
+            "--rh-visibility" => {
+                options.rh.voxel_visibility = match value(flag, &mut args)? {
+                    "voxels" => true,
+                    "none" => false,
+                    other => return Err(format!("--rh-visibility: `{other}` is not voxels or none")),
+                }
+            }
+            "--rh-secondary-transport" => {
+                use crate::radiance_hints::SecondaryTransport as T;
+                options.rh.secondary = match value(flag, &mut args)? {
+                    "voxel" => T::VoxelMarch,
+                    "paper" => T::Paper,
+                    other => return Err(format!("--rh-secondary-transport: `{other}` is not voxel or paper")),
+                }
+            }
+            "--rh-refinement" => options.rh.refinement_updates = any_number(flag, value(flag, &mut args)?)?,
+            "--dump-volume" => options.dump_volume = Some(PathBuf::from(value(flag, &mut args)?)),
+            "--half-res" => options.half_resolution = true,
+            "--debug-view" => {
+                use crate::camera::GiDebugView as V;
+                options.debug_view = Some(match value(flag, &mut args)? {
+                    "indirect" => V::IndirectOnly,
+                    "irradiance" => V::Irradiance,
+                    "hint-grid" => V::HintGrid,
+                    "rsm-flux" => V::RsmFlux,
+                    "rsm-normal" => V::RsmNormal,
+                    "rsm-position" => V::RsmPosition,
+                    other => {
+                        return Err(format!(
+                            "--debug-view: `{other}` is not indirect, irradiance, hint-grid, rsm-flux, rsm-normal or rsm-position"
+                        ))
+                    }
+                })
+            }
+            "--gi-output" => {
+                options.gi_output = match value(flag, &mut args)? {
+                    "composite" => GiOutput::Composite,
+                    "irradiance-volume" => GiOutput::IrradianceVolume,
+                    other => return Err(format!("--gi-output: `{other}` is not composite or irradiance-volume")),
+                }
+            }
             "--help" | "-h" => return Err(USAGE.to_string()),
             other => return Err(format!("unknown flag `{other}`\n{USAGE}")),
         }
+    }
+    if options.indirect_only && options.gi_output == GiOutput::IrradianceVolume {
+        return Err("--indirect-only measures the per-pixel reconstruction; render the IrradianceVolume output \
+                    in full and subtract a --method none render"
+            .into());
     }
     if !out_given {
         let scene = match &options.scene {
