@@ -15,7 +15,7 @@ use std::process::ExitCode;
 use bevy::math::{Mat4, UVec3, Vec2, Vec3};
 use bevy_diffuse_gi::reference::{ReferenceSettings, incident_radiance};
 use bevy_diffuse_gi::sampling::{SobolStream, uniform_sphere};
-use bevy_diffuse_gi::scenes::cornell_snapshot;
+use bevy_diffuse_gi::scenes::{cellar_snapshot, cornell_snapshot};
 use bevy_diffuse_gi::sh::{ShOrder, ShRgb};
 use rayon::prelude::*;
 
@@ -31,7 +31,7 @@ fn main() -> ExitCode {
 
 fn run() -> Result<(), String> {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let path = args.first().ok_or("usage: rh_volume_check VOLUME.json [--bounces N] [--stride S]")?;
+    let path = args.first().ok_or("usage: rh_volume_check VOLUME.json [--bounces N] [--stride S] [--scene cornell|cellar] [--list]")?;
     let flag = |name: &str, default: u32| -> Result<u32, String> {
         match args.iter().position(|a| a == name) {
             Some(i) => args.get(i + 1).and_then(|v| v.parse().ok()).ok_or(format!("{name} needs a number")),
@@ -50,7 +50,12 @@ fn run() -> Result<(), String> {
     let sh: Vec<f32> = serde_json::from_value(v["sh"].clone()).map_err(|e| e.to_string())?;
     let validity: Vec<f32> = serde_json::from_value(v["albedo_validity"].clone()).map_err(|e| e.to_string())?;
 
-    let scene = cornell_snapshot();
+    let scene = match args.iter().position(|a| a == "--scene").and_then(|i| args.get(i + 1)).map(String::as_str) {
+        None | Some("cornell") => cornell_snapshot(),
+        Some("cellar") => cellar_snapshot(),
+        Some(other) => return Err(format!("unknown scene {other}")),
+    };
+    let list = args.iter().any(|a| a == "--list");
     let settings = ReferenceSettings {
         max_bounces: Some(bounces.max(1)),
         seed: 7,
@@ -66,7 +71,7 @@ fn run() -> Result<(), String> {
         }
     }
     const DIRECTIONS: u32 = 128;
-    let rows: Vec<(u32, [f32; 6], [f32; 6])> = hints
+    let rows: Vec<(u32, [f32; 6], [f32; 6], Vec3)> = hints
         .par_iter()
         .filter_map(|&c| {
             let index = (c.x + res.x * (c.y + res.y * c.z)) as usize;
@@ -77,16 +82,28 @@ fn run() -> Result<(), String> {
             let local = (c.as_vec3() + 0.5) * cell - 0.5;
             let stream = SobolStream::new(11, index as u64);
             let mut truth = ShRgb::new(order);
+            let centre = world_from_local.transform_point3(local);
+            let mut used = 0u32;
             for k in 0..DIRECTIONS {
                 let u = stream.vertex_4d(k, 0);
-                let jitter = Vec3::new(u[2], u[3], stream.vertex_4d(k, 1)[0]) - 0.5;
+                // Half-cell jitter, as the injection's default, and only origins the centre sees (the hint
+                // stands for the free part of its cell).
+                let jitter = (Vec3::new(u[2], u[3], stream.vertex_4d(k, 1)[0]) - 0.5) * 0.5;
                 let origin = world_from_local.transform_point3(local + jitter * cell);
+                let to = origin - centre;
+                if to.length() > 1e-6 && scene.occluded(centre, to.normalize(), 0.0, to.length()) {
+                    continue;
+                }
+                used += 1;
                 let d = uniform_sphere(Vec2::new(u[0], u[1]));
                 let [_, direct, indirect] = incident_radiance(&scene, origin, d, &settings, 8, index as u64 * 1000 + k as u64);
                 // Light reflected once is the tracer's direct class; each extra bounce adds indirect light.
                 let radiance = if bounces == 0 { direct } else { direct + indirect };
-                // Incident radiance × (4π / N) solid angle per direction.
-                truth.add_sample(d, radiance * (4.0 * std::f32::consts::PI / DIRECTIONS as f32));
+                // Incident radiance × 4π solid angle per direction (divided by the directions used below).
+                truth.add_sample(d, radiance * (4.0 * std::f32::consts::PI));
+            }
+            for c in truth.coefficients.iter_mut() {
+                *c /= used.max(1) as f32;
             }
             let mut rh = ShRgb::new(order);
             for i in 0..coefficients {
@@ -99,10 +116,22 @@ fn run() -> Result<(), String> {
                 ring,
                 normals.map(|n| luminance(rh.irradiance(n).max(Vec3::ZERO))),
                 normals.map(|n| luminance(truth.irradiance(n).max(Vec3::ZERO))),
+                world_from_local.transform_point3(local),
             ))
         })
         .collect();
 
+    if list {
+        // The hints where RH exceeds the truth most (sum over the six normals).
+        let mut sorted: Vec<_> = rows.iter().collect();
+        sorted.sort_by(|a, b| {
+            let excess = |r: &&(u32, [f32; 6], [f32; 6], Vec3)| r.1.iter().sum::<f32>() - r.2.iter().sum::<f32>();
+            excess(b).total_cmp(&excess(a))
+        });
+        for r in sorted.iter().take(12) {
+            println!("hint at {:>6.2}: RH {:?}\n           truth {:?}", r.3, r.1.map(|v| (v * 100.0).round() / 100.0), r.2.map(|v| (v * 100.0).round() / 100.0));
+        }
+    }
     println!("RH / path-traced irradiance at the hints ({} hints, {bounces} extra bounces)", rows.len());
     println!("cells from boundary |   +X     -X     +Y     -Y     +Z     -Z  | hints");
     let max_ring = rows.iter().map(|r| r.0).max().unwrap_or(0);
@@ -121,5 +150,12 @@ fn run() -> Result<(), String> {
     }
     let (rh, truth): (f32, f32) = rows.iter().fold((0.0, 0.0), |(a, b), r| (a + r.1.iter().sum::<f32>(), b + r.2.iter().sum::<f32>()));
     println!("all                 | {:.3}", rh / truth.max(1e-12));
+    for (name, side) in [("x < 0", -1.0f32), ("x > 0", 1.0)] {
+        let (rh, truth): (f32, f32) = rows
+            .iter()
+            .filter(|r| r.3.x * side > 0.0)
+            .fold((0.0, 0.0), |(a, b), r| (a + r.1.iter().sum::<f32>(), b + r.2.iter().sum::<f32>()));
+        println!("{name:<19} | {:.3}  (RH {rh:.1}, truth {truth:.1})", rh / truth.max(1e-12));
+    }
     Ok(())
 }

@@ -1,17 +1,20 @@
 #!/usr/bin/env bash
-# Quick evaluation of one Radiance Hints configuration on cornell (development aid):
-#   scripts/rh_eval.sh NAME [headless flags...]
-# Renders the indirect light at 256² and prints block RMSE / energy against the all-bounce, one-bounce and
-# two-bounce ground truths, plus the GPU milliseconds of the RH passes.
+# Quick evaluation of one Radiance Hints configuration (development aid):
+#   [SCENE=cellar] scripts/rh_eval.sh NAME [headless flags...]
+# Renders the indirect light at 256² and prints block RMSE / energy against the committed ground truths of
+# the scene (cornell: all-bounce, one-bounce and two-bounce), plus the GPU milliseconds of the RH passes.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 name=$1; shift
 export WGPU_BACKEND=${WGPU_BACKEND:-vulkan}
+scene=${SCENE:-cornell}
 out=out/eval/$name.exr
-cargo run -q --release --example headless -- --scene cornell --method rh --indirect-only --out "$out" "$@" 2>&1 \
+cargo run -q --release --example headless -- --scene "$scene" --method rh --indirect-only --out "$out" "$@" 2>&1 \
     | grep -E "ERROR|panicked|headless:" || true
 row="$name"
-for gt in cornell cornell_b1 cornell_b2; do
+truths=$scene
+[ "$scene" = cornell ] && truths="cornell cornell_b1 cornell_b2"
+for gt in $truths; do
     m=$(cargo run -q --release --example compare -- "$out" assets/ground_truth/$gt.exr --diff out/eval/$name.$gt.diff.png)
     b=$(echo "$m" | awk '/block/ {print $4}'); e=$(echo "$m" | awk '/energy/ {print $3}')
     row="$row | $gt $b / $e"

@@ -3,8 +3,10 @@
 // The GI target holds Σ w·E/π (rgb) and Σ w (a) over the volumes covering each pixel (see the methods'
 // reconstruction passes). The light added is `albedo × E/π × exposure`, with the albedo decoded from Bevy's
 // G-buffer (base colour stored gamma-2.2, times 1 − metallic): the indirect-only image of the metrics.
-// At half resolution each pixel takes the four nearest GI texels, weighted bilinearly and by how similar
-// their depth and normal are to its own (joint bilateral upsampling).
+// The reconstruction rotates its hemisphere samples per pixel (interleaved gradient noise), which turns
+// differences between hints into a fine pattern; the composite filters it away. At full resolution each
+// pixel averages its 3×3 neighbourhood, at half resolution the 4×4 GI texels around it (bilinear), both
+// weighted by how similar the neighbours' depth and normal are to its own (joint bilateral filtering).
 
 #import bevy_core_pipeline::fullscreen_vertex_shader::FullscreenVertexOutput
 #import bevy_render::view::View
@@ -52,28 +54,31 @@ fn resolve(t: vec4<f32>) -> vec3<f32> {
 }
 
 fn gi_at(pixel: vec2<i32>, n: vec3<f32>, depth: f32) -> vec3<f32> {
-    if GI_SCALE == 1 {
-        return resolve(textureLoad(gi_texture, pixel, 0));
-    }
     let low_size = vec2<i32>(textureDimensions(gi_texture));
     let full_size = vec2<i32>(textureDimensions(depth_texture));
     let pos = (vec2<f32>(pixel) + 0.5) / f32(GI_SCALE) - 0.5;
-    let base = vec2<i32>(floor(pos));
-    let f = pos - vec2<f32>(base);
+    // Full resolution: the 3×3 neighbourhood, equal spatial weights. Half resolution: the 4×4 texels
+    // around the pixel, bilinear tent weights.
+    let base = select(vec2<i32>(floor(pos)) - 1, pixel - 1, GI_SCALE == 1);
+    let f = pos - floor(pos);
+    let taps = select(4, 3, GI_SCALE == 1);
     let z = view_depth(depth);
     var sum = vec3(0.0);
     var total = 0.0;
     var nearest = vec3(0.0);
     var nearest_distance = 1e30;
-    for (var i = 0; i < 4; i++) {
-        let o = vec2(i & 1, i >> 1);
+    for (var i = 0; i < taps * taps; i++) {
+        let o = vec2(i % taps, i / taps);
         let q = clamp(base + o, vec2(0), low_size - 1);
         let source = min(q * GI_SCALE, full_size - 1);
         let d = textureLoad(depth_texture, source, 0);
         if d <= 0.0 {
             continue;
         }
-        let bilinear = select(1.0 - f.x, f.x, o.x == 1) * select(1.0 - f.y, f.y, o.y == 1);
+        // Tent weights over the 4×4 texels (distance from the pixel in low-resolution texels), or flat.
+        let dist = abs(vec2<f32>(base + o) - pos);
+        let tent = max(vec2(0.0), 1.0 - dist * 0.5);
+        let bilinear = select(tent.x * tent.y, 1.0, GI_SCALE == 1);
         let dz = abs(view_depth(d) - z) / max(z, 1e-4);
         let similarity = exp(-dz * 20.0) * pow(max(dot(normal_at(source), n), 0.0), 8.0);
         let value = resolve(textureLoad(gi_texture, q, 0));

@@ -127,9 +127,22 @@ fn inject(@builtin(global_invocation_id) gid: vec3<u32>) {
             texels = volume.coverage * res_l * res_l;
         }
         let weight = texels / f32(samples);
+        // This light's contribution, rescaled below by the receivers that lay in free space.
+        var light_sh: Sh;
+        var receivers = 0.0;
         for (var s = 0u; s < samples; s++) {
             let jitter = (rand3(&rng) - 0.5) * volume.jitter;
-            let y = local_to_world(volume, cell_center_local(cell + jitter, res));
+            let y_local = cell_center_local(cell + jitter, res);
+            let y = local_to_world(volume, y_local);
+#ifdef VOXEL_VISIBILITY
+            // A receiver across a wall from the hint's centre (or inside the wall) belongs to another room:
+            // the hint stands for the free part of its cell, so such receivers are left out of the average.
+            if any(jitter != vec3(0.0)) && first_hit(local_to_occupancy(volume, cell_center_local(cell, res)),
+                    local_to_occupancy(volume, y_local), occupancy_res, 0.0) >= 0.0 {
+                continue;
+            }
+#endif
+            receivers += 1.0;
             var uv: vec2<f32>;
             var face = 0u;
             if use_disk {
@@ -171,7 +184,13 @@ fn inject(@builtin(global_invocation_id) gid: vec3<u32>) {
 #ifdef DEPTH_OCCLUSION
             contribution *= depth_attenuation(p.xyz, y);
 #endif
-            sh_add(&sh, w, contribution);
+            sh_add(&light_sh, w, contribution);
+        }
+        if receivers > 0.0 {
+            let scale = f32(samples) / receivers;
+            for (var i = 0u; i < SH_COEFS; i++) {
+                sh.c[i] += light_sh.c[i] * scale;
+            }
         }
     }
 

@@ -14,8 +14,9 @@
 #import bevy_render::view::View
 #import bevy_pbr::pbr_deferred_types::unpack_24bit_normal
 #import bevy_pbr::utils::{octahedral_decode, interleaved_gradient_noise}
-#import bevy_diffuse_gi::rh_types::{PI, world_to_local, sh_irradiance}
-#import bevy_diffuse_gi::rh_sampling::{volume, sample_sh}
+#import bevy_diffuse_gi::rh_types::{PI, world_to_local, local_to_occupancy, sh_irradiance}
+#import bevy_diffuse_gi::rh_sampling::{volume, trilinear, sample_sh}
+#import bevy_diffuse_gi::rh_occupancy::first_hit
 
 @group(0) @binding(0) var<uniform> view: View;
 @group(0) @binding(1) var depth_texture: texture_depth_2d;
@@ -61,15 +62,41 @@ fn reconstruct(in: FullscreenVertexOutput) -> @location(0) vec4<f32> {
     let rotation = 2.0 * PI * interleaved_gradient_noise(vec2<f32>(pixel), 0u);
     let count = max(volume.reconstruction_samples, 1u);
     var irradiance = vec3(0.0);
+    var used = 0.0;
     for (var i = 0u; i < count; i++) {
         var d = n;
         if i > 0u {
             let phi = rotation + 2.0 * PI * f32(i - 1u) / f32(max(count - 1u, 1u));
             d = frame * vec3(CONE_SIN * cos(phi), CONE_SIN * sin(phi), CONE_COS);
         }
-        irradiance += sh_irradiance(sample_sh(origin + d * r), n);
+        var p = origin + d * r;
+        // A sample position must be reachable from the surface: a cone sample half a metre to the side
+        // can otherwise land beyond a thin wall, among the next room's hints. Such a sample is pulled back
+        // along its path to a voxel before the obstacle. Positions that still see no hint are skipped.
+        if volume.occupancy_resolution.w != 0u {
+            let start = local_to_occupancy(volume, world_to_local(volume, origin));
+            let end = local_to_occupancy(volume, world_to_local(volume, p));
+            let t = first_hit(start, end, volume.occupancy_resolution.xyz, 0.0);
+            if t >= 0.0 {
+                let voxels = max(length(end - start), 1e-3);
+                p = mix(origin, p, max(t - 1.0 / voxels, 0.0));
+            }
+        }
+        if trilinear(p).found {
+            irradiance += sh_irradiance(sample_sh(p), n);
+            used += 1.0;
+        }
     }
-    irradiance /= f32(count);
+    if used == 0.0 {
+        // Every sample fell in a wall (a pixel in a tight corner): read the field just off the surface.
+        let near = world + n * (0.1 * r);
+        if !trilinear(near).found {
+            discard;
+        }
+        irradiance = sh_irradiance(sample_sh(near), n);
+        used = 1.0;
+    }
+    irradiance /= used;
     let radiance_per_albedo = irradiance / PI;
     return vec4(radiance_per_albedo * weight, weight);
 }

@@ -2,7 +2,8 @@
 // Bind group 1 of every pass that reads a volume.
 #define_import_path bevy_diffuse_gi::rh_sampling
 
-#import bevy_diffuse_gi::rh_types::{RhVolume, Sh, SH_COEFS, SH_FLOATS, world_to_local, cell_index}
+#import bevy_diffuse_gi::rh_types::{RhVolume, Sh, SH_COEFS, SH_FLOATS, world_to_local, cell_index, local_to_occupancy}
+#import bevy_diffuse_gi::rh_occupancy::first_hit
 
 @group(1) @binding(0) var<uniform> volume: RhVolume;
 // SH_FLOATS floats per hint: the radiance field being read.
@@ -15,14 +16,20 @@
 struct Trilinear {
     cells: array<u32, 8>,
     weights: array<f32, 8>,
+    // False when no hint around the position is usable: the lookup returns nothing.
+    found: bool,
 }
 
 // The eight hints around a world position and their trilinear weights (clamped to the grid, so
 // positions beyond the outer hints take the nearest ones). Hints inside solid geometry get no weight
-// (they see light through the solid), unless all eight are inside.
+// (they see light through the solid), and, with `voxel_visibility`, neither do hints behind a surface as
+// seen from the position (a wall between a room and the hints of the next room, closer than a cell). When
+// none is left (the position lies inside a wall or slab) the lookup finds nothing rather than falling back
+// to hints in another room.
 fn trilinear(world: vec3<f32>) -> Trilinear {
     let res = volume.resolution.xyz;
-    let g = clamp((world_to_local(volume, world) + 0.5) * vec3<f32>(res) - 0.5, vec3(0.0), vec3<f32>(res - 1u));
+    let local = world_to_local(volume, world);
+    let g = clamp((local + 0.5) * vec3<f32>(res) - 0.5, vec3(0.0), vec3<f32>(res - 1u));
     let base = min(vec3<u32>(floor(g)), res - 1u);
     let f = g - vec3<f32>(base);
     var t: Trilinear;
@@ -33,16 +40,32 @@ fn trilinear(world: vec3<f32>) -> Trilinear {
         let w = select(1.0 - f, f, vec3<bool>(o == vec3(1u)));
         t.weights[i] = w.x * w.y * w.z;
     }
-    var valid = 0.0;
+    var usable: array<f32, 8>;
+    let from_voxel = local_to_occupancy(volume, local);
     for (var i = 0u; i < 8u; i++) {
-        valid += t.weights[i] * albedo[t.cells[i]].a;
-    }
-    if valid > 1e-4 {
-        for (var i = 0u; i < 8u; i++) {
-            t.weights[i] *= albedo[t.cells[i]].a / valid;
+        usable[i] = albedo[t.cells[i]].a;
+        if volume.occupancy_resolution.w != 0u && usable[i] > 0.0 && t.weights[i] > 0.0 {
+            let o = vec3<u32>(i & 1u, (i >> 1u) & 1u, (i >> 2u) & 1u);
+            let hint = (vec3<f32>(min(base + o, res - 1u)) + 0.5) / vec3<f32>(res) - 0.5;
+            if first_hit(from_voxel, local_to_occupancy(volume, hint), volume.occupancy_resolution.xyz, 0.0) >= 0.0 {
+                usable[i] = 0.0;
+            }
         }
     }
+    var total = 0.0;
+    for (var i = 0u; i < 8u; i++) {
+        total += t.weights[i] * usable[i];
+    }
+    t.found = total > 1e-4;
+    for (var i = 0u; i < 8u; i++) {
+        t.weights[i] = select(0.0, t.weights[i] * usable[i] / total, t.found);
+    }
     return t;
+}
+
+// Whether any hint around a world position is usable (see `trilinear`).
+fn has_hints(world: vec3<f32>) -> bool {
+    return trilinear(world).found;
 }
 
 fn load_sh(cell: u32) -> Sh {
@@ -54,6 +77,7 @@ fn load_sh(cell: u32) -> Sh {
     return sh;
 }
 
+// The interpolated field, zero where no hint is usable (see `trilinear`).
 fn sample_sh(world: vec3<f32>) -> Sh {
     let t = trilinear(world);
     var sh: Sh;

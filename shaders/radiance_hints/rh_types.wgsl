@@ -41,7 +41,8 @@ struct RhVolume {
     workgroups: u32,
     // Index of the bounce being computed (1 = first extra bounce).
     bounce: u32,
-    // xyz: voxels of the occupancy grid per axis; w: unused.
+    // xyz: voxels of the occupancy grid per axis; w: 1 when lookups and injection test visibility through
+    // it (`voxel_visibility`).
     occupancy_resolution: vec4<u32>,
 }
 

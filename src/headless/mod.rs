@@ -108,6 +108,8 @@ struct Headless {
     /// Readbacks received when `Rendering` began.
     receipts_at_render: u32,
     render_start: Option<Instant>,
+    /// The Radiance Hints settings of the spawned volume, and its transform.
+    spawned_rh: Option<(RadianceHintsVolume, Transform)>,
 }
 
 /// Renders as `options` say and returns the images and the sidecar, without writing anything.
@@ -234,6 +236,7 @@ fn build_app(options: &HeadlessOptions, outcome: Arc<Mutex<Outcome>>) -> App {
         phase_frames: 0,
         receipts_at_render: 0,
         render_start: None,
+        spawned_rh: None,
     })
     .add_systems(Startup, setup)
     .add_systems(Update, (attach_camera, spawn_rh_volume, drive).chain());
@@ -297,7 +300,7 @@ fn attach_camera(
 /// `--method rh`: once the scene's meshes have bounds, spawns a Radiance Hints volume around them.
 fn spawn_rh_volume(
     mut commands: Commands,
-    headless: Res<Headless>,
+    mut headless: ResMut<Headless>,
     status: Res<SceneStatus>,
     volumes: Query<(), With<RadianceHintsVolume>>,
     meshes: Query<(&bevy::camera::primitives::Aabb, &GlobalTransform), With<Mesh3d>>,
@@ -310,11 +313,14 @@ fn spawn_rh_volume(
     };
     // A hair larger than the geometry, and never flat.
     let size = ((hi - lo) * 1.002).max(Vec3::splat(0.05));
-    commands.spawn((
-        headless.options.rh.clone(),
-        Transform::from_translation((lo + hi) * 0.5).with_scale(size),
-        Name::new("headless RH volume"),
-    ));
+    let settings = if headless.options.rh_fit_cells {
+        headless.options.rh.clone().with_cubic_cells(size)
+    } else {
+        headless.options.rh.clone()
+    };
+    let transform = Transform::from_translation((lo + hi) * 0.5).with_scale(size);
+    headless.spawned_rh = Some((settings.clone(), transform));
+    commands.spawn((settings, transform, Name::new("headless RH volume")));
 }
 
 /// World-space bounds of every mesh, from Bevy's `Aabb`s.
@@ -552,8 +558,8 @@ fn sidecar(
         json!({ "ev100": exposure.ev100, "multiplier": exposure.exposure() }),
     );
     map.insert("lights".into(), Value::Array(lights));
-    if o.method == HeadlessMethod::RadianceHints {
-        let (rh, _) = o.rh.sanitized();
+    if let Some((rh, transform)) = &headless.spawned_rh {
+        let (rh, _) = rh.sanitized();
         map.insert(
             "radiance_hints".into(),
             json!({
@@ -566,6 +572,9 @@ fn sidecar(
                 "reconstruction_samples": rh.reconstruction_samples, "intensity": rh.intensity,
                 "memory_bytes": rh.memory_bytes(), "half_resolution": o.half_resolution,
                 "output": format!("{:?}", o.gi_output),
+                "secondary": format!("{:?}", rh.secondary), "voxel_visibility": rh.voxel_visibility,
+                "refinement_updates": rh.refinement_updates,
+                "volume_center": transform.translation.to_array(), "volume_size": transform.scale.to_array(),
             }),
         );
     }

@@ -78,6 +78,8 @@ pub struct HeadlessOptions {
     /// on: the plugin clamps them with one warning, as it would for a game.
     #[serde(skip)]
     pub rh: RadianceHintsVolume,
+    /// Fit the hint counts to the scene's proportions (cubic cells), unless `--rh-resolution` was given.
+    pub rh_fit_cells: bool,
     /// GI cameras: reconstruct at half resolution.
     pub half_resolution: bool,
     /// GI cameras: where the bounced light goes.
@@ -106,6 +108,7 @@ impl Default for HeadlessOptions {
             burley_direct: false,
             pixel_centers: false,
             rh: RadianceHintsVolume::default(),
+            rh_fit_cells: true,
             half_resolution: false,
             gi_output: GiOutput::Composite,
             debug_view: None,
@@ -217,6 +220,7 @@ pub fn parse_args<'a>(args: impl IntoIterator<Item = &'a str>) -> Result<Headles
                 let text = value(flag, &mut args)?;
                 let parts: Vec<&str> = text.split(['x', 'X']).collect();
                 let n = |t: &str| t.parse::<u32>().map_err(|_| format!("--rh-resolution: `{text}` is not N or XxYxZ"));
+                options.rh_fit_cells = false;
                 options.rh.resolution = match parts.as_slice() {
                     [a] => bevy::math::UVec3::splat(n(a)?),
                     [x, y, z] => bevy::math::UVec3::new(n(x)?, n(y)?, n(z)?),

@@ -115,7 +115,7 @@ impl FromWorld for RhPipelines {
             ),
             occupancy_layout: BindGroupLayoutDescriptor::new(
                 "diffuse_gi_rh_occupancy_layout",
-                &BindGroupLayoutEntries::single(compute, ro()),
+                &BindGroupLayoutEntries::single(ShaderStages::COMPUTE | ShaderStages::FRAGMENT, ro()),
             ),
             rsm_layout: BindGroupLayoutDescriptor::new(
                 "diffuse_gi_rh_rsm_layout",
@@ -242,7 +242,11 @@ impl SpecializedRenderPipeline for RhPipelines {
         ];
         RenderPipelineDescriptor {
             label: Some("diffuse_gi_rh_reconstruct_pipeline".into()),
-            layout: vec![self.reconstruct_view_layout.clone(), self.sample_layout.clone()],
+            layout: vec![
+                self.reconstruct_view_layout.clone(),
+                self.sample_layout.clone(),
+                self.occupancy_layout.clone(),
+            ],
             vertex: self.fullscreen.clone(),
             fragment: Some(FragmentState {
                 shader: self.shaders.reconstruct.clone(),
@@ -544,7 +548,7 @@ pub(crate) fn prepare_rh_volumes(
             reconstruction_samples: s.reconstruction_samples,
             workgroups: gpu.workgroups,
             bounce: 0,
-            occupancy_resolution: gpu.occupancy_resolution.extend(0),
+            occupancy_resolution: gpu.occupancy_resolution.extend(s.voxel_visibility as u32),
         };
         gpu.uniform_offsets.clear();
         gpu.uniform_offsets.push(state.uniforms.push(&uniform));

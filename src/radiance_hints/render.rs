@@ -93,12 +93,15 @@ pub(crate) fn update_gi_volumes(
                 continue;
             };
 
-            let span = diagnostics.time_span(ctx.command_encoder(), "diffuse_gi/rh_inject");
+            // Spans inside the passes: on lavapipe, timestamps written between compute passes do not
+            // bracket the compute work (the injection's span read 1.6 ms for 64 samples and 4.1 ms for
+            // 256 while the frame took 115 ms longer).
             {
                 let mut pass = ctx.command_encoder().begin_compute_pass(&ComputePassDescriptor {
                     label: Some("diffuse_gi_rh_inject"),
                     timestamp_writes: None,
                 });
+                let span = diagnostics.pass_span(&mut pass, "diffuse_gi/rh_inject");
                 pass.set_pipeline(inject);
                 pass.set_bind_group(0, &groups.inject_output, &[base]);
                 pass.set_bind_group(1, &rsm_bind_group, &[]);
@@ -109,15 +112,15 @@ pub(crate) fn update_gi_volumes(
                 };
                 pass.set_bind_group(3, depth, &[view_offset.offset]);
                 pass.dispatch_workgroups(v.workgroups, 1, 1);
+                span.end(&mut pass);
             }
-            span.end(ctx.command_encoder());
 
-            let span = diagnostics.time_span(ctx.command_encoder(), "diffuse_gi/rh_bounce");
             {
                 let mut pass = ctx.command_encoder().begin_compute_pass(&ComputePassDescriptor {
                     label: Some("diffuse_gi_rh_bounce"),
                     timestamp_writes: None,
                 });
+                let span = diagnostics.pass_span(&mut pass, "diffuse_gi/rh_bounce");
                 for k in 1..=v.settings.extra_bounces {
                     let offset = v.uniform_offsets[k as usize];
                     let (output, sample) = &groups.bounce[(k % 2) as usize];
@@ -134,8 +137,8 @@ pub(crate) fn update_gi_volumes(
                 pass.set_pipeline(blend);
                 pass.set_bind_group(0, &groups.blend, &[base]);
                 pass.dispatch_workgroups(v.workgroups, 1, 1);
+                span.end(&mut pass);
             }
-            span.end(ctx.command_encoder());
             v.updates_left = v.updates_left.saturating_sub(1);
             v.first_update = false;
             v.age += 1;
@@ -227,6 +230,7 @@ pub(crate) fn reconstruct_gi(
             pass.set_render_pipeline(pipeline);
             pass.set_bind_group(0, &view_group, &[view_offset.offset]);
             pass.set_bind_group(1, &groups.sample_result, &[v.uniform_offsets[0]]);
+            pass.set_bind_group(2, &groups.occupancy, &[]);
             pass.draw(0..3, 0..1);
         }
     }

@@ -257,6 +257,17 @@ impl RadianceHintsVolume {
         (s, changed)
     }
 
+    /// The same settings with the resolution adapted to a box of `size` metres so that cells are about
+    /// cubic: the preset's largest per-axis count goes along the longest side, the others in proportion
+    /// (at least 2).
+    pub fn with_cubic_cells(mut self, size: Vec3) -> Self {
+        let size = if size.is_finite() { size.max(Vec3::splat(1e-3)) } else { Vec3::ONE };
+        let hints = self.resolution.max_element().max(2) as f32;
+        let cell = size.max_element() / hints;
+        self.resolution = (size / cell).round().as_uvec3().max(UVec3::splat(2));
+        self
+    }
+
     /// Hints in the grid.
     pub fn hint_count(&self) -> u32 {
         self.resolution.x * self.resolution.y * self.resolution.z
@@ -335,6 +346,14 @@ mod tests {
         }
         // Clamping is idempotent.
         assert!(s.sanitized().1.is_empty());
+    }
+
+    #[test]
+    fn cubic_cells_follow_the_box() {
+        let v = RadianceHintsVolume::MEDIUM.with_cubic_cells(Vec3::new(8.0, 2.5, 4.0));
+        assert_eq!(v.resolution, UVec3::new(16, 5, 8));
+        let flat = RadianceHintsVolume::LOW.with_cubic_cells(Vec3::new(10.0, 0.0, 10.0));
+        assert_eq!(flat.resolution, UVec3::new(8, 2, 8));
     }
 
     #[test]

@@ -210,6 +210,55 @@ pub fn voxelize_occupancy(snapshot: &SceneSnapshot, local_from_world: Mat4, reso
     bits
 }
 
+/// The CPU twin of `first_hit` in `shaders/radiance_hints/rh_occupancy.wgsl`: walks the voxels the segment
+/// `a → b` (occupancy-grid coordinates) passes through, skipping the one containing `a`, and returns the
+/// fraction of the segment where it enters an occupied voxel, or `None`.
+pub fn first_hit(occupancy: &[u32], res: UVec3, a: Vec3, b: Vec3, skip_end: f32) -> Option<f32> {
+    let delta = b - a;
+    let len = delta.length();
+    if len < 1e-5 {
+        return None;
+    }
+    let d = delta / len;
+    let mut v = a.floor().as_ivec3();
+    let step = d.signum().as_ivec3();
+    let inv = Vec3::ONE / d.abs().max(Vec3::splat(1e-8));
+    let frac = a - a.floor();
+    let mut t_max = Vec3::select(d.cmplt(Vec3::ZERO), frac, Vec3::ONE - frac) * inv;
+    t_max = Vec3::select(d.abs().cmplt(Vec3::splat(1e-8)), Vec3::splat(3.0e38), t_max);
+    let limit = len - skip_end;
+    let occupied = |v: bevy::math::IVec3| {
+        if v.cmplt(bevy::math::IVec3::ZERO).any() || v.cmpge(res.as_ivec3()).any() {
+            return false;
+        }
+        let i = cell_index(v.as_uvec3(), res);
+        occupancy[i / 32] & (1 << (i % 32)) != 0
+    };
+    for _ in 0..(res.x + res.y + res.z + 2) {
+        let t;
+        if t_max.x < t_max.y && t_max.x < t_max.z {
+            t = t_max.x;
+            t_max.x += inv.x;
+            v.x += step.x;
+        } else if t_max.y < t_max.z {
+            t = t_max.y;
+            t_max.y += inv.y;
+            v.y += step.y;
+        } else {
+            t = t_max.z;
+            t_max.z += inv.z;
+            v.z += step.z;
+        }
+        if t >= limit {
+            return None;
+        }
+        if occupied(v) {
+            return Some(t / len);
+        }
+    }
+    None
+}
+
 /// Whether the triangle `tri` overlaps the box `centre ± half` (Akenine-Möller, "Fast 3D Triangle-Box
 /// Overlap Testing", 2001: the 13 separating axes).
 pub fn triangle_box_overlap(centre: Vec3, half: Vec3, tri: [Vec3; 3]) -> bool {
@@ -317,6 +366,35 @@ mod tests {
         }
         // Far from the wall, nothing.
         assert!(!bit(&bits, UVec3::new(15, 8, 0), res));
+    }
+
+    #[test]
+    fn cellar_walls_block_every_path_between_the_rooms() {
+        use crate::scenes::cellar::cellar_boxes;
+        let mut tris = Vec::new();
+        for (lo, hi, _) in cellar_boxes() {
+            let mesh = bevy::mesh::Mesh::from(bevy::math::primitives::Cuboid::from_corners(lo, hi));
+            let t = bevy::prelude::GlobalTransform::from_translation((lo + hi) * 0.5);
+            tris.extend(crate::scene::mesh_triangles(&mesh, &t, 0).unwrap());
+        }
+        let scene = SceneSnapshot::build(tris, vec![], vec![], vec![]);
+        let (lo, hi) = scene.bounds().unwrap();
+        let world_from_local = Mat4::from_scale_rotation_translation((hi - lo) * 1.002, Default::default(), (lo + hi) * 0.5);
+        let hints = crate::radiance_hints::RadianceHintsVolume::MEDIUM.with_cubic_cells(hi - lo).resolution;
+        let res = occupancy_resolution(hints);
+        let bits = voxelize_occupancy(&scene, world_from_local.inverse(), res);
+        let grid = |p: Vec3| (world_from_local.inverse().transform_point3(p) + 0.5) * res.as_vec3();
+        // From room B to room A across the dividing wall (x ∈ [−0.1, 0.1]), at every height and depth
+        // away from the door (z ∈ [−1.6, −0.8]).
+        for y in [0.05f32, 0.5, 1.0, 2.0, 2.3, 2.45] {
+            for z in [-1.9f32, -0.6, 0.0, 0.7, 1.9] {
+                let a = grid(Vec3::new(0.35, y, z));
+                let b = grid(Vec3::new(-0.35, y + 0.1, z - 0.05));
+                assert!(first_hit(&bits, res, a, b, 0.0).is_some(), "leak at y={y} z={z}");
+            }
+        }
+        // Through the door, nothing.
+        assert!(first_hit(&bits, res, grid(Vec3::new(0.8, 1.0, -1.2)), grid(Vec3::new(-0.8, 1.0, -1.2)), 0.0).is_none());
     }
 
     #[test]

@@ -2,6 +2,7 @@
 //! renderer and the ground-truth tracer.
 //!
 //! * [`StandardScene::Cornell`]: the Cornell box with a spot light (`cornell.rs`).
+//! * [`StandardScene::Cellar`]: two rooms and a door, lit from one, seen from the other (`cellar.rs`).
 //! * [`StandardScene::Gltf`]: any glTF 2.0 file, loaded through Bevy's glTF loader (meshes,
 //!   `StandardMaterial`s, `KHR_lights_punctual` lights, the first camera). Bevy spawns glTF lights without
 //!   shadows; here they get shadows on and a [`GiLight`], so that a wall blocks light in the game as it
@@ -11,6 +12,7 @@
 //! Add [`StandardScenesPlugin`], call [`spawn_standard_scene`], and wait for [`SceneStatus::Ready`]. The
 //! camera to render through carries [`SceneCamera`]; apps add their render target to it.
 
+pub mod cellar;
 pub mod cornell;
 
 use std::path::{Path, PathBuf};
@@ -24,6 +26,7 @@ use bevy::world_serialization::{WorldAssetRoot, WorldInstanceReady};
 
 use crate::light::GiLight;
 
+pub use cellar::{CELLAR_EV100, cellar_snapshot, spawn_cellar};
 pub use cornell::{CORNELL_EV100, cornell_snapshot, spawn_cornell};
 
 /// A scene the crate knows how to build.
@@ -31,18 +34,22 @@ pub use cornell::{CORNELL_EV100, cornell_snapshot, spawn_cornell};
 pub enum StandardScene {
     /// The Cornell box with a spot light (`shared/SCENES.md`).
     Cornell,
+    /// Two rooms joined by a door, a flashlight in one, the camera in the other: light leaking through
+    /// walls.
+    Cellar,
     /// A glTF 2.0 file (`.glb` or `.gltf`).
     Gltf(PathBuf),
 }
 
 impl StandardScene {
     /// Names accepted by [`StandardScene::parse`] besides file paths.
-    pub const NAMES: &'static [&'static str] = &["cornell"];
+    pub const NAMES: &'static [&'static str] = &["cornell", "cellar"];
 
     /// A scene name, or a path to a `.glb`/`.gltf` file (which must exist).
     pub fn parse(text: &str) -> Result<Self, String> {
         match text {
             "cornell" => Ok(Self::Cornell),
+            "cellar" => Ok(Self::Cellar),
             path if path.ends_with(".glb") || path.ends_with(".gltf") => {
                 let p = Path::new(path);
                 if !p.is_file() {
@@ -61,6 +68,7 @@ impl StandardScene {
     pub fn name(&self) -> String {
         match self {
             Self::Cornell => "cornell".into(),
+            Self::Cellar => "cellar".into(),
             Self::Gltf(path) => path.display().to_string(),
         }
     }
@@ -125,6 +133,10 @@ pub fn spawn_standard_scene(
     match scene {
         StandardScene::Cornell => {
             spawn_cornell(commands, meshes, materials, ev100.unwrap_or(CORNELL_EV100));
+            commands.insert_resource(SceneStatus::Ready);
+        }
+        StandardScene::Cellar => {
+            spawn_cellar(commands, meshes, materials, ev100.unwrap_or(CELLAR_EV100));
             commands.insert_resource(SceneStatus::Ready);
         }
         StandardScene::Gltf(path) => {
