@@ -81,6 +81,7 @@ impl Plugin for DiffuseGiPlugin {
         if self.deferred_by_default {
             app.insert_resource(DefaultOpaqueRendererMethod::deferred());
         }
+        app.init_resource::<DiffuseGiWarnings>();
         app.register_type::<light::GiLight>().add_plugins((
             scene::SceneSnapshotPlugin,
             rsm::RsmPlugin,
@@ -88,6 +89,19 @@ impl Plugin for DiffuseGiPlugin {
             composite::CompositePlugin,
         ));
     }
+}
+
+/// Every warning the plugin has logged about the app's settings or the GPU, in order (each is logged
+/// once, not every frame). For tests, tools and the tuning panel.
+#[derive(Resource, Default, Clone, Debug)]
+pub struct DiffuseGiWarnings {
+    pub messages: Vec<String>,
+}
+
+/// Logs `message` as a warning and records it in [`DiffuseGiWarnings`].
+pub(crate) fn gi_warning(warnings: &mut DiffuseGiWarnings, message: String) {
+    warn!("{message}");
+    warnings.messages.push(message);
 }
 
 /// Registers a WGSL file of `shaders/` as a [`Shader`] asset (import libraries become importable by their

@@ -45,14 +45,16 @@ pub(crate) fn validate_settings(
     volumes: Query<(Entity, &RadianceHintsVolume), Changed<RadianceHintsVolume>>,
     lights: Query<(Entity, &GiLight), Changed<GiLight>>,
     mut warned: Local<HashSet<(Entity, &'static str)>>,
+    mut warnings: ResMut<crate::DiffuseGiWarnings>,
 ) {
     for (entity, volume) in &volumes {
         let (clamped, fields) = volume.sanitized();
         for field in fields {
             if warned.insert((entity, field)) {
-                warn!(
-                    "bevy_diffuse_gi: RadianceHintsVolume on {entity}: invalid `{field}`, using {:?}",
-                    field_value(&clamped, field)
+                let value = field_value(&clamped, field);
+                crate::gi_warning(
+                    &mut warnings,
+                    format!("bevy_diffuse_gi: RadianceHintsVolume on {entity}: invalid `{field}`, using {value}"),
                 );
             }
         }
@@ -60,10 +62,13 @@ pub(crate) fn validate_settings(
     for (entity, light) in &lights {
         let r = light.rsm_resolution;
         if !(GiLight::MIN_RSM_RESOLUTION..=GiLight::MAX_RSM_RESOLUTION).contains(&r) && warned.insert((entity, "rsm_resolution")) {
-            warn!(
-                "bevy_diffuse_gi: GiLight on {entity}: rsm_resolution {r} is outside {}..={}, clamped",
-                GiLight::MIN_RSM_RESOLUTION,
-                GiLight::MAX_RSM_RESOLUTION
+            crate::gi_warning(
+                &mut warnings,
+                format!(
+                    "bevy_diffuse_gi: GiLight on {entity}: rsm_resolution {r} is outside {}..={}, clamped",
+                    GiLight::MIN_RSM_RESOLUTION,
+                    GiLight::MAX_RSM_RESOLUTION
+                ),
             );
         }
     }
@@ -87,18 +92,31 @@ fn field_value(v: &RadianceHintsVolume, field: &str) -> String {
     }
 }
 
+/// Warns once per volume with a degenerate or non-finite transform.
+pub(crate) fn validate_transforms(
+    volumes: Query<(Entity, &GlobalTransform), (With<RadianceHintsVolume>, Changed<GlobalTransform>)>,
+    mut warned: Local<HashSet<Entity>>,
+    mut warnings: ResMut<crate::DiffuseGiWarnings>,
+) {
+    for (entity, transform) in &volumes {
+        let m = transform.to_matrix();
+        if !(m.is_finite() && m.determinant().abs() > 1e-12) && warned.insert(entity) {
+            crate::gi_warning(
+                &mut warnings,
+                format!(
+                    "bevy_diffuse_gi: RadianceHintsVolume on {entity} has a degenerate or non-finite transform; \
+                     using a 1 m cube at the origin"
+                ),
+            );
+        }
+    }
+}
+
 /// The world-from-unit-cube matrix of a volume, with a degenerate or non-finite transform replaced by a
-/// 1 m cube at the origin (and a warning).
-pub(crate) fn volume_matrix(entity: Entity, transform: &GlobalTransform, warned: &mut HashSet<Entity>) -> Mat4 {
+/// 1 m cube at the origin ([`validate_transforms`] warns about it).
+pub(crate) fn volume_matrix(transform: &GlobalTransform) -> Mat4 {
     let m = transform.to_matrix();
-    let det = m.determinant();
-    if m.is_finite() && det.abs() > 1e-12 {
-        return m;
-    }
-    if warned.insert(entity) {
-        warn!("bevy_diffuse_gi: RadianceHintsVolume on {entity} has a degenerate or non-finite transform; using a 1 m cube at the origin");
-    }
-    Mat4::IDENTITY
+    if m.is_finite() && m.determinant().abs() > 1e-12 { m } else { Mat4::IDENTITY }
 }
 
 /// Inserts the scene snapshot (the RSMs rasterise it) as soon as a GI light exists.
@@ -113,14 +131,13 @@ pub(crate) fn update_geometry_voxels(
     mut commands: Commands,
     snapshot: Option<Res<SceneSnapshot>>,
     volumes: Query<(Entity, &RadianceHintsVolume, &GlobalTransform, Option<&RhGeometryVoxels>)>,
-    mut warned: Local<HashSet<Entity>>,
 ) {
     let Some(snapshot) = snapshot else {
         return;
     };
     for (entity, volume, transform, voxels) in &volumes {
         let (settings, _) = volume.sanitized();
-        let matrix = volume_matrix(entity, transform, &mut warned);
+        let matrix = volume_matrix(transform);
         let key = (
             snapshot.geometry_generation,
             matrix.to_cols_array().map(f32::to_bits),
@@ -144,8 +161,11 @@ pub(crate) fn manage_irradiance_exports(
     mut commands: Commands,
     cameras: Query<(&Camera, &DiffuseGi)>,
     volumes: Query<(Entity, &RadianceHintsVolume, Option<&RhIrradianceExport>)>,
-    mut images: ResMut<Assets<Image>>,
+    images: Option<ResMut<Assets<Image>>>,
 ) {
+    let Some(mut images) = images else {
+        return;
+    };
     let wanted = cameras
         .iter()
         .any(|(camera, gi)| camera.is_active && gi.enabled && gi.output == GiOutput::IrradianceVolume);
@@ -224,7 +244,6 @@ pub(crate) fn extract_volumes(
     volumes: Extract<Query<VolumeQuery>>,
     mut extracted: ResMut<ExtractedRhVolumes>,
     mut focus: ResMut<RsmFocus>,
-    mut warned: Local<HashSet<Entity>>,
 ) {
     extracted.volumes.clear();
     let mut bounds: Option<(Vec3, Vec3)> = None;
@@ -233,7 +252,7 @@ pub(crate) fn extract_volumes(
             continue;
         }
         let (settings, _) = volume.sanitized();
-        let world_from_local = volume_matrix(entity, transform, &mut warned);
+        let world_from_local = volume_matrix(transform);
         for i in 0..8 {
             let corner = Vec3::new(
                 if i & 1 == 0 { -0.5 } else { 0.5 },

@@ -150,6 +150,7 @@ impl Plugin for RadianceHintsPlugin {
                 PostUpdate,
                 (
                     extract::validate_settings,
+                    extract::validate_transforms,
                     extract::ensure_snapshot,
                     extract::manage_irradiance_exports,
                     extract::update_geometry_voxels.after(crate::scene::SceneSnapshotSystems::Update),
@@ -177,10 +178,11 @@ impl Plugin for RadianceHintsPlugin {
         let indirect = downlevel.is_none_or(|f| f.contains(DownlevelFlags::INDIRECT_EXECUTION));
         let missing = missing_capabilities(&limits, compute, indirect);
         if let Some((name, required, found)) = missing.first() {
-            warn!(
+            let message = format!(
                 "bevy_diffuse_gi: Radiance Hints disabled: the GPU lacks {name} (needs {required}, has {found}). \
                  The app runs on without bounced light."
             );
+            crate::gi_warning(&mut app.world_mut().resource_mut::<crate::DiffuseGiWarnings>(), message);
             return;
         }
         render_app

@@ -26,7 +26,15 @@ impl Plugin for SceneSnapshotPlugin {
     fn build(&self, app: &mut App) {
         app.add_systems(
             PostUpdate,
-            (update_snapshot_geometry, update_snapshot_lights)
+            (
+                // Apps without meshes, materials or images (no renderer) have no geometry to snapshot.
+                update_snapshot_geometry.run_if(
+                    resource_exists::<Assets<Mesh>>
+                        .and(resource_exists::<Assets<StandardMaterial>>)
+                        .and(resource_exists::<Assets<Image>>),
+                ),
+                update_snapshot_lights,
+            )
                 .in_set(SceneSnapshotSystems::Update)
                 .after(TransformSystems::Propagate)
                 .after(VisibilitySystems::VisibilityPropagate)

@@ -1,0 +1,73 @@
+//! Bad input never crashes a game: invalid settings are clamped with one warning per field (not one per
+//! frame), and the plugin runs in apps without a renderer.
+
+use bevy::prelude::*;
+use bevy_diffuse_gi::prelude::*;
+use bevy_diffuse_gi::DiffuseGiWarnings;
+
+fn app_with(bundle: impl Bundle) -> App {
+    let mut app = App::new();
+    app.add_plugins((MinimalPlugins, TransformPlugin, DiffuseGiPlugin::default()));
+    app.world_mut().spawn(bundle);
+    app
+}
+
+#[test]
+fn invalid_volume_settings_warn_once_per_field_however_many_frames_pass() {
+    let mut app = app_with((
+        RadianceHintsVolume {
+            resolution: UVec3::new(0, 4, 1_000_000),
+            rsm_samples: 0,
+            jitter: f32::NAN,
+            temporal_blend: -1.0,
+            ..RadianceHintsVolume::MEDIUM
+        },
+        Transform::from_scale(Vec3::splat(4.0)),
+    ));
+    for _ in 0..20 {
+        app.update();
+    }
+    let messages = &app.world().resource::<DiffuseGiWarnings>().messages;
+    for field in ["resolution", "rsm_samples", "jitter", "temporal_blend"] {
+        let count = messages.iter().filter(|m| m.contains(&format!("`{field}`"))).count();
+        assert_eq!(count, 1, "{field}: {messages:#?}");
+    }
+    assert_eq!(messages.len(), 4, "{messages:#?}");
+    // The warning names the value used instead.
+    assert!(messages.iter().any(|m| m.contains("`rsm_samples`, using 1")), "{messages:#?}");
+}
+
+#[test]
+fn a_new_invalid_value_after_a_valid_one_is_not_warned_again_for_the_same_field() {
+    let mut app = app_with((RadianceHintsVolume { rsm_samples: 0, ..default() }, Transform::default()));
+    app.update();
+    let entity = app.world_mut().query_filtered::<Entity, With<RadianceHintsVolume>>().single(app.world()).unwrap();
+    for samples in [5000, 0, 64, 0] {
+        app.world_mut().get_mut::<RadianceHintsVolume>(entity).unwrap().rsm_samples = samples;
+        app.update();
+    }
+    let messages = &app.world().resource::<DiffuseGiWarnings>().messages;
+    assert_eq!(messages.iter().filter(|m| m.contains("`rsm_samples`")).count(), 1, "{messages:#?}");
+}
+
+#[test]
+fn degenerate_transforms_and_light_resolutions_warn_once() {
+    let mut app = app_with((RadianceHintsVolume::LOW, Transform::from_scale(Vec3::new(0.0, f32::NAN, 1.0))));
+    app.world_mut().spawn((SpotLight::default(), GiLight { rsm_resolution: 1 << 20 }));
+    for _ in 0..10 {
+        app.update();
+    }
+    let messages = &app.world().resource::<DiffuseGiWarnings>().messages;
+    assert_eq!(messages.iter().filter(|m| m.contains("degenerate or non-finite transform")).count(), 1, "{messages:#?}");
+    assert_eq!(messages.iter().filter(|m| m.contains("rsm_resolution")).count(), 1, "{messages:#?}");
+}
+
+#[test]
+fn valid_presets_say_nothing() {
+    let mut app = app_with((RadianceHintsVolume::HIGH, Transform::from_scale(Vec3::splat(10.0))));
+    app.world_mut().spawn((DirectionalLight::default(), GiLight::default()));
+    for _ in 0..5 {
+        app.update();
+    }
+    assert!(app.world().resource::<DiffuseGiWarnings>().messages.is_empty());
+}
