@@ -69,16 +69,17 @@ fn cornell_radiance_hints_bleed_colour_fill_shadows_and_match_the_ground_truth()
     let shadow = luminance(BOX_SHADOW.mean(test, &image));
     check(test, shadow > 0.1, &image, Some(&truth), format!("no indirect light in the shadow: {shadow}"));
 
-    // Against the path-traced indirect light. Measured on lavapipe: block relative RMSE 0.2115, energy
-    // 0.941; the margins absorb run-to-run sampling noise.
+    // Against the path-traced indirect light. Measured on lavapipe: block relative RMSE 0.2057, energy
+    // 0.954; the margins absorb driver and sampling differences.
     let m = metrics::compare(&image, &truth).expect("comparable images");
+    eprintln!("{test}: block {:.4}, energy {:.4}", m.block_relative_rmse, m.energy_ratio);
     check(
         test,
-        m.block_relative_rmse <= 0.25 && (0.88..=1.02).contains(&m.energy_ratio),
+        m.block_relative_rmse <= 0.24 && (0.90..=1.02).contains(&m.energy_ratio),
         &image,
         Some(&truth),
         format!(
-            "cornell, medium preset: block relative RMSE {:.4} (want ≤ 0.25), energy {:.4} (want 0.88–1.02)",
+            "cornell, medium preset: block relative RMSE {:.4} (want ≤ 0.24), energy {:.4} (want 0.90–1.02)",
             m.block_relative_rmse, m.energy_ratio
         ),
     );
@@ -104,15 +105,16 @@ fn cellar_light_does_not_leak_through_the_dividing_wall() {
             format!("{}: {a:.3} against {t:.3} in the ground truth: light leaks through the wall", region.name),
         );
     }
-    // Measured on lavapipe: block relative RMSE 0.348, energy 0.794 (the paper's first bounce without
+    // Measured on lavapipe: block relative RMSE 0.3065, energy 0.865 (the paper's first bounce without
     // visibility: 2.45 / 2.33).
     let m = metrics::compare(&image, &truth).expect("comparable images");
+    eprintln!("{test}: block {:.4}, energy {:.4}", m.block_relative_rmse, m.energy_ratio);
     check(
         test,
-        m.block_relative_rmse <= 0.42 && (0.7..=1.1).contains(&m.energy_ratio),
+        m.block_relative_rmse <= 0.36 && (0.78..=1.0).contains(&m.energy_ratio),
         &image,
         Some(&truth),
-        format!("cellar, high preset: block {:.4} (want ≤ 0.42), energy {:.4}", m.block_relative_rmse, m.energy_ratio),
+        format!("cellar, high preset: block {:.4} (want ≤ 0.36), energy {:.4} (want 0.78–1.0)", m.block_relative_rmse, m.energy_ratio),
     );
 }
 
@@ -158,11 +160,12 @@ fn half_resolution_stays_close_to_full_resolution() {
         ..Default::default()
     })
     .image;
-    // Measured on lavapipe (medium preset): half 0.2101 / 0.940 against the truth, full 0.2115 / 0.941.
+    // Measured on lavapipe (low preset): block 0.024, energy 0.998 between the two.
     let m = metrics::compare(&half, &full).expect("comparable");
+    eprintln!("{test}: block {:.4}, energy {:.4}", m.block_relative_rmse, m.energy_ratio);
     check(
         test,
-        m.block_relative_rmse < 0.08 && (0.95..=1.05).contains(&m.energy_ratio),
+        m.block_relative_rmse < 0.05 && (0.97..=1.03).contains(&m.energy_ratio),
         &half,
         Some(&full),
         format!("half vs full resolution: block {:.4}, energy {:.4}", m.block_relative_rmse, m.energy_ratio),
@@ -188,11 +191,12 @@ fn irradiance_volume_output_lights_the_scene_through_bevys_light_probe() {
         check(test, v > 0.05, &indirect, Some(&truth), format!("{}: no light from the probe ({v})", region.name));
     }
     // Six directions per hint and no hemisphere sampling, yet close to the per-pixel composite.
-    // Measured on lavapipe: block relative RMSE 0.242, energy 0.912 (composite: 0.2115, 0.941).
+    // Measured on lavapipe: block relative RMSE 0.237, energy 0.925 (composite: 0.206, 0.954).
     let m = metrics::compare(&indirect, &truth).expect("comparable");
+    eprintln!("{test}: block {:.4}, energy {:.4}", m.block_relative_rmse, m.energy_ratio);
     check(
         test,
-        m.block_relative_rmse < 0.28 && (0.86..=1.0).contains(&m.energy_ratio),
+        m.block_relative_rmse < 0.27 && (0.87..=0.99).contains(&m.energy_ratio),
         &indirect,
         Some(&truth),
         format!("IrradianceVolume output: block {:.4}, energy {:.4}", m.block_relative_rmse, m.energy_ratio),

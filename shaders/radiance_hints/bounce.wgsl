@@ -73,7 +73,7 @@ fn bounce(
             let omega = uniform_sphere(u);
             let end = p_n + omega * reach;
             let b = local_to_occupancy(volume, world_to_local(volume, end));
-            let found = first_hit_face(a, b, volume.occupancy_resolution.xyz, 0.0);
+            let found = first_hit_face(a, b, volume.occupancy_resolution.xyz, 0.0, 0.0);
             let t = found.w;
             if t < 0.0 {
                 continue;

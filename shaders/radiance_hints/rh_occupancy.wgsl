@@ -18,12 +18,18 @@ fn occupied(v: vec3<i32>, res: vec3<u32>) -> bool {
 // start may sit on a surface), and so are voxels entered within `skip_end` voxel lengths of `b` (the end
 // is a surface point whose own voxels must not count).
 fn first_hit(a: vec3<f32>, b: vec3<f32>, res: vec3<u32>, skip_end: f32) -> f32 {
-    return first_hit_face(a, b, res, skip_end).w;
+    return first_hit_face(a, b, res, skip_end, 0.0).w;
+}
+
+// Like `first_hit`, also ignoring occupied voxels entered within `skip_start` voxel lengths of `a`: for a
+// lookup point close to a surface (in a corner, the voxels of both walls lie next to it).
+fn first_hit_from(a: vec3<f32>, b: vec3<f32>, res: vec3<u32>, skip_start: f32) -> f32 {
+    return first_hit_face(a, b, res, 0.0, skip_start).w;
 }
 
 // Like `first_hit`, with the normal of the voxel face the segment entered through (grid axes, pointing
 // back towards `a`) in xyz and the fraction in w (-1 for no hit).
-fn first_hit_face(a: vec3<f32>, b: vec3<f32>, res: vec3<u32>, skip_end: f32) -> vec4<f32> {
+fn first_hit_face(a: vec3<f32>, b: vec3<f32>, res: vec3<u32>, skip_end: f32, skip_start: f32) -> vec4<f32> {
     let delta = b - a;
     let len = length(delta);
     if len < 1e-5 {
@@ -62,7 +68,7 @@ fn first_hit_face(a: vec3<f32>, b: vec3<f32>, res: vec3<u32>, skip_end: f32) -> 
         if t >= limit {
             return vec4(0.0, 0.0, 0.0, -1.0);
         }
-        if occupied(v, res) {
+        if t >= skip_start && occupied(v, res) {
             return vec4(face, t / len);
         }
     }

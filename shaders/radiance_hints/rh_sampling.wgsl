@@ -3,7 +3,7 @@
 #define_import_path bevy_diffuse_gi::rh_sampling
 
 #import bevy_diffuse_gi::rh_types::{RhVolume, Sh, SH_COEFS, SH_FLOATS, world_to_local, cell_index, local_to_occupancy}
-#import bevy_diffuse_gi::rh_occupancy::first_hit
+#import bevy_diffuse_gi::rh_occupancy::first_hit_from
 
 @group(1) @binding(0) var<uniform> volume: RhVolume;
 // SH_FLOATS floats per hint: the radiance field being read.
@@ -47,7 +47,8 @@ fn trilinear(world: vec3<f32>) -> Trilinear {
         if volume.occupancy_resolution.w != 0u && usable[i] > 0.0 && t.weights[i] > 0.0 {
             let o = vec3<u32>(i & 1u, (i >> 1u) & 1u, (i >> 2u) & 1u);
             let hint = (vec3<f32>(min(base + o, res - 1u)) + 0.5) / vec3<f32>(res) - 0.5;
-            if first_hit(from_voxel, local_to_occupancy(volume, hint), volume.occupancy_resolution.xyz, 0.0) >= 0.0 {
+            // Surfaces within a voxel of the lookup point are the ones it sits on, not walls in between.
+            if first_hit_from(from_voxel, local_to_occupancy(volume, hint), volume.occupancy_resolution.xyz, 1.0) >= 0.0 {
                 usable[i] = 0.0;
             }
         }
