@@ -308,7 +308,7 @@ fn spawn_rh_volume(
     if headless.options.method != HeadlessMethod::RadianceHints || *status != SceneStatus::Ready || !volumes.is_empty() {
         return;
     }
-    let Some((lo, hi)) = scene_bounds(&meshes) else {
+    let Some((lo, hi)) = crate::scenes::mesh_bounds(&meshes) else {
         return;
     };
     // A hair larger than the geometry, and never flat.
@@ -321,25 +321,6 @@ fn spawn_rh_volume(
     let transform = Transform::from_translation((lo + hi) * 0.5).with_scale(size);
     headless.spawned_rh = Some((settings.clone(), transform));
     commands.spawn((settings, transform, Name::new("headless RH volume")));
-}
-
-/// World-space bounds of every mesh, from Bevy's `Aabb`s.
-fn scene_bounds(meshes: &Query<(&bevy::camera::primitives::Aabb, &GlobalTransform), With<Mesh3d>>) -> Option<(Vec3, Vec3)> {
-    let mut bounds: Option<(Vec3, Vec3)> = None;
-    for (aabb, transform) in meshes {
-        for i in 0..8 {
-            let corner = Vec3::from(aabb.center)
-                + Vec3::from(aabb.half_extents)
-                    * Vec3::new(
-                        if i & 1 == 0 { -1.0 } else { 1.0 },
-                        if i & 2 == 0 { -1.0 } else { 1.0 },
-                        if i & 4 == 0 { -1.0 } else { 1.0 },
-                    );
-            let p = transform.transform_point(corner);
-            bounds = Some(bounds.map_or((p, p), |(lo, hi)| (lo.min(p), hi.max(p))));
-        }
-    }
-    bounds
 }
 
 #[expect(clippy::too_many_arguments, reason = "the driver reads every part of the world it reports on")]

@@ -30,8 +30,8 @@ impl Plugin for SceneSnapshotPlugin {
                 // Apps without meshes, materials or images (no renderer) have no geometry to snapshot.
                 update_snapshot_geometry.run_if(
                     resource_exists::<Assets<Mesh>>
-                        .and(resource_exists::<Assets<StandardMaterial>>)
-                        .and(resource_exists::<Assets<Image>>),
+                        .and_then(resource_exists::<Assets<StandardMaterial>>)
+                        .and_then(resource_exists::<Assets<Image>>),
                 ),
                 update_snapshot_lights,
             )

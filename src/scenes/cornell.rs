@@ -67,6 +67,46 @@ pub fn spawn_cornell(
     materials: &mut Assets<StandardMaterial>,
     ev100: f32,
 ) {
+    spawn_cornell_geometry(commands, meshes, materials);
+    commands.spawn((cornell_spot_light(), GiLight::default(), Name::new("spot light")));
+    commands.spawn((cornell_camera(ev100), SceneCamera, Name::new("cornell camera")));
+}
+
+/// The spot light of `cornell` (without a [`GiLight`]): 100 cd at (0, 0.98, 0), pointing down, 30° hard cone.
+pub fn cornell_spot_light() -> (SpotLight, Transform) {
+    let cone = LIGHT_CONE_DEGREES.to_radians();
+    (
+        SpotLight {
+            color: Color::WHITE,
+            intensity: 4.0 * std::f32::consts::PI * LIGHT_CANDELA,
+            shadow_maps_enabled: true,
+            inner_angle: cone,
+            outer_angle: cone,
+            ..default()
+        },
+        Transform::from_translation(LIGHT_POSITION).looking_to(Vec3::NEG_Y, Vec3::Z),
+    )
+}
+
+/// The camera of `cornell` (a plain `Camera3d` with its projection, transform and exposure).
+pub fn cornell_camera(ev100: f32) -> impl Bundle {
+    (
+        Camera3d::default(),
+        Projection::Perspective(PerspectiveProjection {
+            fov: FOV_Y_DEGREES.to_radians(),
+            ..default()
+        }),
+        Transform::from_translation(CAMERA_POSITION).looking_at(Vec3::ZERO, Vec3::Y),
+        Exposure { ev100 },
+    )
+}
+
+/// Spawns the box and the two blocks (no light, no camera).
+pub fn spawn_cornell_geometry(
+    commands: &mut Commands,
+    meshes: &mut Assets<Mesh>,
+    materials: &mut Assets<StandardMaterial>,
+) {
     let white = materials.add(diffuse_material(WHITE));
     let red = materials.add(diffuse_material(RED));
     let green = materials.add(diffuse_material(GREEN));
@@ -98,32 +138,6 @@ pub fn spawn_cornell(
         ));
     }
 
-    let cone = LIGHT_CONE_DEGREES.to_radians();
-    commands.spawn((
-        SpotLight {
-            color: Color::WHITE,
-            intensity: 4.0 * std::f32::consts::PI * LIGHT_CANDELA,
-            shadow_maps_enabled: true,
-            inner_angle: cone,
-            outer_angle: cone,
-            ..default()
-        },
-        Transform::from_translation(LIGHT_POSITION).looking_to(Vec3::NEG_Y, Vec3::Z),
-        GiLight::default(),
-        Name::new("spot light"),
-    ));
-
-    commands.spawn((
-        Camera3d::default(),
-        Projection::Perspective(PerspectiveProjection {
-            fov: FOV_Y_DEGREES.to_radians(),
-            ..default()
-        }),
-        Transform::from_translation(CAMERA_POSITION).looking_at(Vec3::ZERO, Vec3::Y),
-        Exposure { ev100 },
-        SceneCamera,
-        Name::new("cornell camera"),
-    ));
 }
 
 /// The scene as a [`SceneSnapshot`](crate::scene::SceneSnapshot), built on the CPU from the same meshes,

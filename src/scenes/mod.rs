@@ -279,3 +279,22 @@ fn prepare_loaded_gltf(
     }
     commands.insert_resource(SceneStatus::Ready);
 }
+
+/// World-space bounds of meshes from Bevy's `Aabb`s and transforms (e.g. to fit a GI volume to a scene).
+pub fn mesh_bounds<'a>(
+    meshes: impl IntoIterator<Item = (&'a bevy::camera::primitives::Aabb, &'a GlobalTransform)>,
+) -> Option<(Vec3, Vec3)> {
+    let mut bounds: Option<(Vec3, Vec3)> = None;
+    for (aabb, transform) in meshes {
+        for i in 0..8 {
+            let sign = Vec3::new(
+                if i & 1 == 0 { -1.0 } else { 1.0 },
+                if i & 2 == 0 { -1.0 } else { 1.0 },
+                if i & 4 == 0 { -1.0 } else { 1.0 },
+            );
+            let p = transform.transform_point(Vec3::from(aabb.center) + Vec3::from(aabb.half_extents) * sign);
+            bounds = Some(bounds.map_or((p, p), |(lo, hi)| (lo.min(p), hi.max(p))));
+        }
+    }
+    bounds
+}
