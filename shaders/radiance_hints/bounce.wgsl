@@ -26,7 +26,7 @@
     Sh, SH_COEFS, SH_FLOATS, PI, sh_add, sh_irradiance, cell_coords, cell_center_local, local_to_world, pcg,
     rand, rand3, uniform_sphere, finite3,
 }
-#import bevy_diffuse_gi::rh_sampling::{volume, distances, albedo, sample_sh, sample_distances, sample_albedo, inside_volume}
+#import bevy_diffuse_gi::rh_sampling::{volume, distances, albedo, trilinear, sh_at, distances_at, albedo_at, sample_sh, inside_volume}
 #import bevy_diffuse_gi::rh_types::{world_to_local, local_to_occupancy}
 #ifndef SECONDARY_PAPER
 #import bevy_diffuse_gi::rh_occupancy::first_hit_face
@@ -86,7 +86,7 @@ fn bounce(
             let front = hit - omega * (0.5 * volume.cell.w);
             var rho = vec3(1.0);
             if volume.albedo_volume != 0u {
-                rho = sample_albedo(hit);
+                rho = albedo_at(trilinear(hit));
             }
             let radiance = rho / PI * sh_irradiance(sample_sh(front), face_normal);
             sh_add(&acc, omega, radiance);
@@ -99,7 +99,8 @@ fn bounce(
             if !inside_volume(p_j) {
                 continue;
             }
-            let dist_j = sample_distances(p_j);
+            let lookup = trilinear(p_j);
+            let dist_j = distances_at(lookup);
             // Eq. 11, distances normalised by r_max.
             let d = length(offset) / volume.r_max;
             let near = dist_n.x + dist_j.x;
@@ -114,10 +115,10 @@ fn bounce(
             let omega = offset / max(length(offset), 1e-6);
             var rho = vec3(1.0);
             if volume.albedo_volume != 0u {
-                rho = sample_albedo(p_j);
+                rho = albedo_at(lookup);
             }
             // Eq. 10: radiance leaving p_j towards p_n.
-            let radiance = rho / PI * sh_irradiance(sample_sh(p_j), -omega);
+            let radiance = rho / PI * sh_irradiance(sh_at(lookup), -omega);
             sh_add(&acc, omega, w * radiance);
             weight_sum += w;
         }

@@ -15,7 +15,7 @@
 #import bevy_pbr::pbr_deferred_types::unpack_24bit_normal
 #import bevy_pbr::utils::{octahedral_decode, interleaved_gradient_noise}
 #import bevy_diffuse_gi::rh_types::{PI, world_to_local, local_to_occupancy, sh_irradiance}
-#import bevy_diffuse_gi::rh_sampling::{volume, trilinear, sample_sh}
+#import bevy_diffuse_gi::rh_sampling::{volume, trilinear, sh_at}
 #import bevy_diffuse_gi::rh_occupancy::first_hit
 
 @group(0) @binding(0) var<uniform> view: View;
@@ -82,18 +82,20 @@ fn reconstruct(in: FullscreenVertexOutput) -> @location(0) vec4<f32> {
                 p = mix(origin, p, max(t - 1.0 / voxels, 0.0));
             }
         }
-        if trilinear(p).found {
-            irradiance += sh_irradiance(sample_sh(p), n);
+        let lookup = trilinear(p);
+        if lookup.found {
+            irradiance += sh_irradiance(sh_at(lookup), n);
             used += 1.0;
         }
     }
     if used == 0.0 {
         // Every sample fell in a wall (a pixel in a tight corner): read the field just off the surface.
         let near = world + n * (0.1 * r);
-        if !trilinear(near).found {
+        let lookup = trilinear(near);
+        if !lookup.found {
             discard;
         }
-        irradiance = sh_irradiance(sample_sh(near), n);
+        irradiance = sh_irradiance(sh_at(lookup), n);
         used = 1.0;
     }
     irradiance /= used;

@@ -64,11 +64,6 @@ fn trilinear(world: vec3<f32>) -> Trilinear {
     return t;
 }
 
-// Whether any hint around a world position is usable (see `trilinear`).
-fn has_hints(world: vec3<f32>) -> bool {
-    return trilinear(world).found;
-}
-
 fn load_sh(cell: u32) -> Sh {
     var sh: Sh;
     let base = cell * SH_FLOATS;
@@ -78,9 +73,10 @@ fn load_sh(cell: u32) -> Sh {
     return sh;
 }
 
-// The interpolated field, zero where no hint is usable (see `trilinear`).
-fn sample_sh(world: vec3<f32>) -> Sh {
-    let t = trilinear(world);
+// The interpolated field for the weights of `trilinear` (zero where no hint is usable). The `*_at`
+// functions take the weights so that a caller reading several quantities at one position marches the
+// visibility rays once.
+fn sh_at(t: Trilinear) -> Sh {
     var sh: Sh;
     for (var k = 0u; k < 8u; k++) {
         let w = t.weights[k];
@@ -95,8 +91,7 @@ fn sample_sh(world: vec3<f32>) -> Sh {
     return sh;
 }
 
-fn sample_distances(world: vec3<f32>) -> vec4<f32> {
-    let t = trilinear(world);
+fn distances_at(t: Trilinear) -> vec4<f32> {
     var d = vec4(0.0);
     for (var k = 0u; k < 8u; k++) {
         d += t.weights[k] * distances[t.cells[k]];
@@ -104,13 +99,17 @@ fn sample_distances(world: vec3<f32>) -> vec4<f32> {
     return d;
 }
 
-fn sample_albedo(world: vec3<f32>) -> vec3<f32> {
-    let t = trilinear(world);
+fn albedo_at(t: Trilinear) -> vec3<f32> {
     var a = vec3(0.0);
     for (var k = 0u; k < 8u; k++) {
         a += t.weights[k] * albedo[t.cells[k]].rgb;
     }
     return a;
+}
+
+// The interpolated field at a world position (see `trilinear`).
+fn sample_sh(world: vec3<f32>) -> Sh {
+    return sh_at(trilinear(world));
 }
 
 // Whether a world position lies inside the volume's box.
