@@ -108,6 +108,8 @@ struct Headless {
     /// Readbacks received when `Rendering` began.
     receipts_at_render: u32,
     render_start: Option<Instant>,
+    /// When each frame of the `Rendering` phase began (GPU methods): the frame-time measurements.
+    frame_starts: Vec<Instant>,
     /// The Radiance Hints settings of the spawned volume, and its transform.
     spawned_rh: Option<(RadianceHintsVolume, Transform)>,
 }
@@ -236,10 +238,11 @@ fn build_app(options: &HeadlessOptions, outcome: Arc<Mutex<Outcome>>) -> App {
         phase_frames: 0,
         receipts_at_render: 0,
         render_start: None,
+        frame_starts: Vec::new(),
         spawned_rh: None,
     })
     .add_systems(Startup, setup)
-    .add_systems(Update, (attach_camera, spawn_rh_volume, drive).chain());
+    .add_systems(Update, (attach_camera, spawn_rh_volume, animate_lights, drive).chain());
     app
 }
 
@@ -308,7 +311,7 @@ fn spawn_rh_volume(
     if headless.options.method != HeadlessMethod::RadianceHints || *status != SceneStatus::Ready || !volumes.is_empty() {
         return;
     }
-    let Some((lo, hi)) = crate::scenes::mesh_bounds(&meshes) else {
+    let Some((lo, hi)) = crate::scenes::mesh_bounds(meshes) else {
         return;
     };
     // A hair larger than the geometry, and never flat.
@@ -405,6 +408,7 @@ fn drive(
                 finish(&mut headless, &mut exit, error);
                 return;
             }
+            headless.frame_starts.push(Instant::now());
             let mut frames = headless.frames.lock().expect("frames lock");
             if frames.received < headless.receipts_at_render + headless.options.frames {
                 drop(frames);
@@ -429,6 +433,10 @@ fn drive(
                 json!({ "frames_after_settling": frames, "render_including_settling": seconds,
                         "per_frame": seconds / (frames + headless.receipts_at_render).max(1) as f64 }),
             );
+            // Main-world frame intervals while rendering: the frame time in a steady state, readback included.
+            let intervals: Vec<f64> =
+                headless.frame_starts.windows(2).map(|w| (w[1] - w[0]).as_secs_f64() * 1e3).collect();
+            map.insert("frame_ms".into(), json!(intervals));
             let mut outcome = headless.outcome.lock().expect("outcome lock");
             outcome.image = Some(image);
             outcome.sidecar = map;
@@ -436,6 +444,25 @@ fn drive(
             finish(&mut headless, &mut exit, None);
         }
         Phase::Done => {}
+    }
+}
+
+/// `--animate-light`: moves every GI light on a 2 cm circle around where it was spawned, one step per
+/// frame, so the light's RSM and the GI volume are recomputed every frame as for a moving light.
+fn animate_lights(
+    headless: Res<Headless>,
+    mut lights: Query<(Entity, &mut Transform), With<crate::light::GiLight>>,
+    mut origins: Local<std::collections::HashMap<Entity, Vec3>>,
+    mut step: Local<u32>,
+) {
+    if !headless.options.animate_light {
+        return;
+    }
+    *step += 1;
+    let angle = *step as f32 * 0.7;
+    for (entity, mut transform) in &mut lights {
+        let origin = *origins.entry(entity).or_insert(transform.translation);
+        transform.translation = origin + 0.01 * Vec3::new(angle.cos(), 0.0, angle.sin());
     }
 }
 

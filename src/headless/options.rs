@@ -90,6 +90,9 @@ pub struct HeadlessOptions {
     /// GI cameras: a debug view instead of the image (`--indirect-only` selects `IndirectOnly`).
     #[serde(skip)]
     pub debug_view: Option<crate::camera::GiDebugView>,
+    /// Move every GI light a little each frame (a 2 cm circle), so that the RSM and the GI volume are
+    /// recomputed every frame as they are for a moving light: the dynamic-light timing case.
+    pub animate_light: bool,
 }
 
 impl Default for HeadlessOptions {
@@ -113,6 +116,7 @@ impl Default for HeadlessOptions {
             gi_output: GiOutput::Composite,
             debug_view: None,
             dump_volume: None,
+            animate_light: false,
         }
     }
 }
@@ -129,6 +133,7 @@ usage: headless [--scene cornell|PATH.glb] [--size WxH] [--frames N] [--out FILE
                 [--rh-visibility voxels|none] [--rh-secondary-transport voxel|paper] [--rh-refinement N]
                 [--dump-volume FILE.json]
                 [--half-res] [--gi-output composite|irradiance-volume] [--debug-view VIEW]
+                [--animate-light]
 
   --scene          a standard scene name or a glTF 2.0 file            (default cornell)
   --size           image size in pixels, 1..=8192 each                  (default 256x256)
@@ -148,15 +153,16 @@ usage: headless [--scene cornell|PATH.glb] [--size WxH] [--frames N] [--out FILE
                    out-of-range values with a warning. --rh-depth-occlusion 0 turns §8 off
   --half-res       reconstruct the bounced light at half resolution
   --gi-output      composite (per pixel, default) or irradiance-volume (Bevy's light probe)
-  --debug-view     rh: indirect, irradiance, hint-grid, rsm-flux, rsm-normal or rsm-position";
+  --debug-view     rh: indirect, irradiance, hint-grid, rsm-flux, rsm-normal or rsm-position
+  --animate-light  move the GI lights on a 2 cm circle every frame (times the dynamic-light case)";
 
 fn value<'a>(flag: &str, args: &mut impl Iterator<Item = &'a str>) -> Result<&'a str, String> {
     args.next().ok_or_else(|| format!("{flag} needs a value"))
 }
 
-fn number<T: std::str::FromStr>(flag: &str, text: &str, min: T, max: T) -> Result<T, String>
+fn number<T>(flag: &str, text: &str, min: T, max: T) -> Result<T, String>
 where
-    T: PartialOrd + std::fmt::Display + Copy,
+    T: std::str::FromStr + PartialOrd + std::fmt::Display + Copy,
 {
     let v: T = text
         .parse()
@@ -272,6 +278,7 @@ pub fn parse_args<'a>(args: impl IntoIterator<Item = &'a str>) -> Result<Headles
             "--rh-refinement" => options.rh.refinement_updates = any_number(flag, value(flag, &mut args)?)?,
             "--dump-volume" => options.dump_volume = Some(PathBuf::from(value(flag, &mut args)?)),
             "--half-res" => options.half_resolution = true,
+            "--animate-light" => options.animate_light = true,
             "--debug-view" => {
                 use crate::camera::GiDebugView as V;
                 options.debug_view = Some(match value(flag, &mut args)? {
