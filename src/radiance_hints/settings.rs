@@ -17,9 +17,9 @@ use crate::sh::ShOrder;
 /// Invalid values (zero or huge sizes, NaN, absurd sample counts) are clamped to the documented range with
 /// one warning per field; see [`RadianceHintsVolume::sanitized`].
 ///
-/// Memory per volume: `cells × (4 SH blocks + 3) × 16 B` with SH order 2 and `cells × (7 + 3) × 16 B` with
-/// order 3 (two increment buffers, a running sum, the displayed result, distances, albedo) — 16³ order 2:
-/// 0.9 MiB.
+/// Memory per volume ([`memory_bytes`](Self::memory_bytes)): `hints × (4 × 3 × SH coefficients × 4 B + 32 B)`
+/// (two bounce increments, a running sum, the displayed result, distances, albedo) plus one bit per
+/// occupancy voxel (4× the hint resolution): 16³ with SH order 2 is 0.9 MiB, 24³ 3.1 MiB.
 #[derive(Component, Reflect, Clone, Debug, PartialEq)]
 #[reflect(Component, Default, Clone)]
 #[require(Transform, Visibility)]
@@ -55,7 +55,8 @@ pub struct RadianceHintsVolume {
     ///
     /// Default 0.5 (the middle half of the cell). Valid range 0–1. Larger values smooth the field between
     /// hints, but receivers that reach a wall next to the hint pick up its near-field light unevenly: on
-    /// cornell the whole cell (1.0) gave block RMSE 0.30 where 0.5 gave 0.23. Free.
+    /// cornell (medium preset) the whole cell (1.0) gives block RMSE 0.206 where 0.5 gives 0.200 (see
+    /// `docs/radiance_hints.md`). Free.
     pub jitter: f32,
     /// Extra diffuse bounces after the first, exchanged between hints (§6–7, Eq. 8–10).
     ///
@@ -282,11 +283,14 @@ impl RadianceHintsVolume {
         (0.5 * size.length()).max(2.0 * cell.length()).max(1e-3)
     }
 
-    /// GPU memory of the volume's buffers in bytes.
+    /// GPU memory of the volume's buffers in bytes: four SH buffers (two bounce increments, the running
+    /// sum and the displayed result), the distances and albedo per hint, and the occupancy bits.
     pub fn memory_bytes(&self) -> u64 {
-        let blocks = crate::radiance_hints::sh_blocks(self.sh_order) as u64;
-        // Two increment buffers, a running sum and the displayed result, plus distances and albedo.
-        self.hint_count() as u64 * (4 * blocks + 2) * 16
+        let hints = self.hint_count() as u64;
+        let sh = hints * crate::radiance_hints::sh_floats(self.sh_order) as u64 * 4;
+        let occupancy = crate::radiance_hints::voxelize::occupancy_resolution(self.resolution);
+        let occupancy_bytes = (occupancy.x as u64 * occupancy.y as u64 * occupancy.z as u64).div_ceil(32) * 4;
+        4 * sh + 2 * hints * 16 + occupancy_bytes
     }
 }
 
