@@ -22,7 +22,7 @@
 //!
 //! Modules: [`rsm`] (reflective shadow maps), [`radiance_hints`] (the method), [`composite`] (adding the
 //! light to the image, debug views), [`camera`] and [`light`] (the user's components), [`ui`] (the egui
-//! panel, feature `egui`). The measuring instruments: [`scene`] (CPU snapshot of the world), [`reference`]
+//! panel, feature `egui`). The measuring instruments: [`scene`] (CPU snapshot of the world), [`reference`](mod@reference)
 //! (path-traced ground truth), [`metrics`] (errors), [`scenes`] (standard scenes), [`headless`].
 
 pub mod camera;

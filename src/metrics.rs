@@ -85,7 +85,7 @@ fn relative_rmse(values: &[[f64; 3]], reference: &[[f64; 3]]) -> Option<f64> {
     (mean_r > 0.0).then(|| (squared / n).sqrt() / mean_r)
 }
 
-/// Compares `a` (the method) with `r` (the ground truth). FLIP is not computed; see [`compare_with_flip`].
+/// Compares `a` (the method) with `r` (the ground truth). FLIP is not computed; see `compare_with_flip` (feature `flip`).
 pub fn compare(a: &HdrImage, r: &HdrImage) -> Result<ErrorMetrics, MetricsError> {
     let mask = mask(a, r)?;
     let rgb = |p: [f32; 4]| [p[0] as f64, p[1] as f64, p[2] as f64];

@@ -208,7 +208,6 @@ pub(crate) fn prepare_composite(
 }
 
 /// Adds the indirect light (or draws the debug view) into the camera's main texture.
-#[expect(clippy::too_many_arguments, reason = "the composite reads the view, the GI target and the debug inputs")]
 pub(crate) fn composite_gi(
     view: ViewQuery<(
         &ExtractedDiffuseGi,

@@ -1,4 +1,4 @@
-//! The ground truth: a CPU path tracer over the [`SceneSnapshot`](crate::scene::SceneSnapshot).
+//! The ground truth: a CPU path tracer over the [`SceneSnapshot`].
 //!
 //! Every GI method of this crate is judged against this renderer (`shared/METRICS.md`). It reads the same
 //! Bevy world as the game — meshes with their transforms, `StandardMaterial` diffuse colour and emission,
@@ -403,7 +403,7 @@ fn trace_path_from(
 
         // Continue only while a longer path can still be kept (its emission has `depth` reflecting
         // vertices).
-        if depth >= max_reflecting + 1 || depth >= settings.max_depth {
+        if depth > max_reflecting || depth >= settings.max_depth {
             return;
         }
         let u = sample.vertex(depth);

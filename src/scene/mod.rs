@@ -319,7 +319,7 @@ fn intersect_triangle(tri: &BvhTriangle, ray: &Ray) -> Option<(f32, f32, f32)> {
     let inv_det = 1.0 / det;
     let s = ray.origin - tri.v0;
     let u = s.dot(p) * inv_det;
-    if !(u >= 0.0 && u <= 1.0) {
+    if !(0.0..=1.0).contains(&u) {
         return None;
     }
     let q = s.cross(e1);
@@ -486,7 +486,8 @@ impl SceneSnapshot {
         let Some(bvh) = self.bvh.as_ref() else {
             return false;
         };
-        if !(t_max > t_min) {
+        // Written so that NaN bounds are rejected too.
+        if t_max.partial_cmp(&t_min) != Some(std::cmp::Ordering::Greater) {
             return false;
         }
         let ray = bvh_ray(origin, direction, t_min, t_max);
