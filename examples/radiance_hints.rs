@@ -102,7 +102,7 @@ fn fit_volume(
     if *status != SceneStatus::Ready || !volumes.is_empty() {
         return;
     }
-    let Some((lo, hi)) = mesh_bounds(&meshes) else {
+    let Some((lo, hi)) = mesh_bounds(meshes) else {
         return;
     };
     for camera in &cameras {
