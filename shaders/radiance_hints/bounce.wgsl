@@ -26,7 +26,7 @@
     Sh, SH_COEFS, SH_FLOATS, PI, sh_add, sh_irradiance, cell_coords, cell_center_local, local_to_world, pcg,
     rand, rand3, uniform_sphere, finite3,
 }
-#import bevy_diffuse_gi::rh_sampling::{volume, distances, albedo, trilinear, sh_at, distances_at, albedo_at, sample_sh, inside_volume}
+#import bevy_diffuse_gi::rh_sampling::{volume, distances, albedo, trilinear, trilinear_from, sh_at, distances_at, albedo_at, inside_volume}
 #import bevy_diffuse_gi::rh_types::{world_to_local, local_to_occupancy}
 #ifndef SECONDARY_PAPER
 #import bevy_diffuse_gi::rh_occupancy::first_hit_face
@@ -88,7 +88,9 @@ fn bounce(
             if volume.albedo_volume != 0u {
                 rho = albedo_at(trilinear(hit));
             }
-            let radiance = rho / PI * sh_irradiance(sample_sh(front), face_normal);
+            // Every surface between `front` and a hint blocks it: a ray grazing a wall next to a corner
+            // puts `front` within a voxel of that wall, and skipping it would read the next room's hints.
+            let radiance = rho / PI * sh_irradiance(sh_at(trilinear_from(front, 0.0)), face_normal);
             sh_add(&acc, omega, radiance);
         }
         let scale = 4.0 * PI / f32(max(n_samples, 1u));

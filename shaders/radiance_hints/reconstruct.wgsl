@@ -16,7 +16,7 @@
 #import bevy_pbr::utils::{octahedral_decode, interleaved_gradient_noise}
 #import bevy_diffuse_gi::rh_types::{PI, world_to_local, local_to_occupancy, sh_irradiance}
 #import bevy_diffuse_gi::rh_sampling::{volume, trilinear, sh_at}
-#import bevy_diffuse_gi::rh_occupancy::first_hit
+#import bevy_diffuse_gi::rh_occupancy::first_hit_inclusive
 
 @group(0) @binding(0) var<uniform> view: View;
 @group(0) @binding(1) var depth_texture: texture_depth_2d;
@@ -73,10 +73,13 @@ fn reconstruct(in: FullscreenVertexOutput) -> @location(0) vec4<f32> {
         // A sample position must be reachable from the surface: a cone sample half a metre to the side
         // can otherwise land beyond a thin wall, among the next room's hints. Such a sample is pulled back
         // along its path to a voxel before the obstacle. Positions that still see no hint are skipped.
+        // The origin lies half a cell off the pixel's own surface, so an occupied voxel around it is
+        // another surface (the wall meeting the ceiling at a junction): the sample then stays at the
+        // origin instead of marching through that wall into the next room.
         if volume.occupancy_resolution.w != 0u {
             let start = local_to_occupancy(volume, world_to_local(volume, origin));
             let end = local_to_occupancy(volume, world_to_local(volume, p));
-            let t = first_hit(start, end, volume.occupancy_resolution.xyz, 0.0);
+            let t = first_hit_inclusive(start, end, volume.occupancy_resolution.xyz);
             if t >= 0.0 {
                 let voxels = max(length(end - start), 1e-3);
                 p = mix(origin, p, max(t - 1.0 / voxels, 0.0));

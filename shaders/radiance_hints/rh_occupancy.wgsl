@@ -27,6 +27,15 @@ fn first_hit_from(a: vec3<f32>, b: vec3<f32>, res: vec3<u32>, skip_start: f32) -
     return first_hit_face(a, b, res, 0.0, skip_start).w;
 }
 
+// Like `first_hit`, but the voxel containing `a` counts too (fraction 0 when it is occupied): for a start
+// point known to be off every surface it belongs to, whose own voxel can only hold another surface.
+fn first_hit_inclusive(a: vec3<f32>, b: vec3<f32>, res: vec3<u32>) -> f32 {
+    if occupied(vec3<i32>(floor(a)), res) {
+        return 0.0;
+    }
+    return first_hit_face(a, b, res, 0.0, 0.0).w;
+}
+
 // Like `first_hit`, with the normal of the voxel face the segment entered through (grid axes, pointing
 // back towards `a`) in xyz and the fraction in w (-1 for no hit).
 fn first_hit_face(a: vec3<f32>, b: vec3<f32>, res: vec3<u32>, skip_end: f32, skip_start: f32) -> vec4<f32> {

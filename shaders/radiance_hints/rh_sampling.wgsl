@@ -25,8 +25,15 @@ struct Trilinear {
 // (they see light through the solid), and, with `voxel_visibility`, neither do hints behind a surface as
 // seen from the position (a wall between a room and the hints of the next room, closer than a cell). When
 // none is left (the position lies inside a wall or slab) the lookup finds nothing rather than falling back
-// to hints in another room.
+// to hints in another room. Surfaces within a voxel of `world` are taken for the one it sits on (a
+// reflector's hit point) and do not block; see `trilinear_from` for a point known to be off all surfaces.
 fn trilinear(world: vec3<f32>) -> Trilinear {
+    return trilinear_from(world, 1.0);
+}
+
+// `trilinear`, where occupied voxels entered within `skip` voxel lengths of `world` do not block a hint
+// (0: every surface between the point and a hint does, beyond the voxel containing the point).
+fn trilinear_from(world: vec3<f32>, skip: f32) -> Trilinear {
     let res = volume.resolution.xyz;
     let local = world_to_local(volume, world);
     let g = clamp((local + 0.5) * vec3<f32>(res) - 0.5, vec3(0.0), vec3<f32>(res - 1u));
@@ -47,8 +54,7 @@ fn trilinear(world: vec3<f32>) -> Trilinear {
         if volume.occupancy_resolution.w != 0u && usable[i] > 0.0 && t.weights[i] > 0.0 {
             let o = vec3<u32>(i & 1u, (i >> 1u) & 1u, (i >> 2u) & 1u);
             let hint = (vec3<f32>(min(base + o, res - 1u)) + 0.5) / vec3<f32>(res) - 0.5;
-            // Surfaces within a voxel of the lookup point are the ones it sits on, not walls in between.
-            if first_hit_from(from_voxel, local_to_occupancy(volume, hint), volume.occupancy_resolution.xyz, 1.0) >= 0.0 {
+            if first_hit_from(from_voxel, local_to_occupancy(volume, hint), volume.occupancy_resolution.xyz, skip) >= 0.0 {
                 usable[i] = 0.0;
             }
         }
