@@ -1,53 +1,90 @@
 //! Radiance Hints (Papaioannou, "Real-Time Diffuse Global Illumination Using Radiance Hints", HPG 2011):
-//! multi-bounce diffuse GI from a sparse grid of spherical-harmonic radiance probes filled from the
-//! reflective shadow maps of the lights.
+//! multi-bounce diffuse GI from a sparse grid of spherical-harmonic radiance probes ("hints") filled from
+//! the reflective shadow maps of the lights.
 //!
-//! # Algorithm (one frame)
+//! ```no_run
+//! # use bevy::prelude::*;
+//! # use bevy_diffuse_gi::prelude::*;
+//! # fn setup(mut commands: Commands) {
+//! commands.spawn((Camera3d::default(), DiffuseGi::default()));               // requires the deferred prepass
+//! commands.spawn((SpotLight { shadow_maps_enabled: true, ..default() }, GiLight::default()));
+//! commands.spawn((RadianceHintsVolume::MEDIUM, Transform::from_scale(Vec3::new(8.0, 3.0, 8.0))));
+//! # }
+//! ```
+//!
+//! # Algorithm (one update of a volume)
 //! 1. **RSMs** ([`crate::rsm`]): every [`GiLight`](crate::light::GiLight) rasterises the scene from its
-//!    point of view into position, normal and reflected-flux targets (`ρ·Φ_T`, Eq. 4).
-//! 2. **Injection** (§4, Eq. 3–5; `shaders/radiance_hints/inject.wgsl`): each hint draws `N_s` RSM samples
-//!    (split between lights by power), each received at a point jittered inside the hint's cell, and
-//!    projects the radiance arriving from them onto SH of order 2 or 3. It records the nearest and farthest
-//!    RSM sample, normalised by `r_max`.
-//! 3. **Extra bounces** (§6–7, Eq. 8–11; `bounce.wgsl`): each hint gathers from `N_b` points in a ball of
-//!    radius `r_max`, reflecting their field as a diffuse surface facing it would (Eq. 10, coloured by the
-//!    albedo volume), weighted by Eq. 11's distance-based visibility and Eq. 9's confidence. Bounce `k`
-//!    gathers from bounce `k − 1`'s increment; the running sum is the result. A bounce that adds less than
-//!    [`bounce_threshold`](RadianceHintsVolume::bounce_threshold) of the light so far stops the rest on the
-//!    GPU (indirect dispatch with zero workgroups).
-//! 4. **Temporal smoothing** (§9.1; `blend.wgsl`): the displayed field moves towards the new one by
-//!    [`temporal_blend`](RadianceHintsVolume::temporal_blend).
-//! 5. **Reconstruction** (§5, Eq. 6–7; `reconstruct.wgsl`): per pixel, `N_RH` positions on a hemisphere of
-//!    one cell diagonal around the surface, shifted half a diagonal along the normal, each interpolated
-//!    trilinearly and integrated against the clamped cosine; the composite adds `albedo × E/π × exposure`.
+//!    point of view into position, normal and reflected-flux targets (`ρ·Φ_T`, Eq. 4): a cube for point
+//!    lights and wide spots, one face for narrow spots, an orthographic face fitted to the volumes for
+//!    directional lights. Only faces whose light or geometry changed are redrawn.
+//! 2. **Injection** (§4, Eq. 3–5; `shaders/radiance_hints/inject.wgsl`): each hint draws `N_s` RSM samples,
+//!    split between the lights by power, each received at a point `y_k` jittered inside the hint's cell,
+//!    and projects `L̃(y_k) = ρΦ_T (M/N) max(0, n_k·−ω_k) / (π d²)` along `ω_k` onto SH of order 2 or 3
+//!    (Eq. 5). It records the nearest and farthest sample, normalised by `r_max`, for Eq. 9 and 11.
+//! 3. **Extra bounces** (§6–7; `bounce.wgsl`): bounce `k` gathers from bounce `k − 1`'s increment and
+//!    adds its own increment to the running sum. The default [`SecondaryTransport::VoxelMarch`] marches
+//!    `N_b` stratified directions through the volume's voxelised scene to the first surface and reflects
+//!    the previous bounce's light there (Eq. 10 at the true reflector, coloured by the §6 albedo volume);
+//!    [`SecondaryTransport::Paper`] is Eq. 8–11 as a weighted Monte Carlo estimator over points in a ball
+//!    of radius `r_max`, with Eq. 11's distance-based visibility and Eq. 9's confidence. A decide pass
+//!    stops the remaining bounces on the GPU (indirect dispatch of zero workgroups) once one adds less
+//!    than [`bounce_threshold`](RadianceHintsVolume::bounce_threshold) of the light so far.
+//! 4. **Temporal smoothing** (§9.1; `blend.wgsl`): after a change the displayed field moves towards the
+//!    new one by [`temporal_blend`](RadianceHintsVolume::temporal_blend); while nothing changes, the next
+//!    [`refinement_updates`](RadianceHintsVolume::refinement_updates) updates (fresh RSM samples and
+//!    jitter each) are averaged with weights `1/(k+1)`, then the volume stops updating.
+//! 5. **Reconstruction** (§5, Eq. 6–7; `reconstruct.wgsl`): per pixel, `N_RH` positions on a hemisphere
+//!    of one cell diagonal around the surface, shifted half a diagonal along the normal (the first on the
+//!    normal, the rest on a cone 80° from it, rotated per pixel), each interpolated trilinearly and
+//!    integrated against the clamped cosine with the Ramamoorthi–Hanrahan coefficients. The composite
+//!    ([`crate::composite`]) filters it with a joint bilateral filter and adds `albedo × E/π × exposure`
+//!    to the HDR target before transparent objects.
+//! 6. Optionally, **export** (`export.wgsl`) writes the field as an ambient cube per hint into a Bevy
+//!    `IrradianceVolume`, for forward-rendered games ([`GiOutput::IrradianceVolume`](crate::camera::GiOutput)).
 //!
 //! # Where this departs from the paper, and why
-//! Each change was measured against the path-traced ground truth on `cornell` (`docs/radiance_hints.md`):
+//! Each change was measured against the path-traced ground truth (`docs/radiance_hints.md` has the tables):
 //! * Spot and point lights sample their **whole RSM**: the paper's disk around the hint's projection
 //!   misses the lit floor for hints near a ceiling light. `c_RSM` applies to directional lights.
-//! * RSM samples are **small area lights** (`d² + A_k/π` instead of `d²`), as the paper says but Eq. 3 does
-//!   not write; the raw `1/d²` gives heavy-tailed noise beside walls.
-//! * Eq. 8–9 normalise twice as printed (bounces vanish as `1/N_b`); they are implemented as the weighted
-//!   Monte Carlo estimator the text describes, and each bounce gathers from the previous **increment**.
-//! * The optional **albedo volume** of §6 is on by default (voxelised on the CPU from the scene snapshot).
+//! * **Voxel visibility** for the first bounce: the paper leaves it unoccluded (§7), and in a two-room
+//!   scene most of the light in the unlit room then comes through the wall. The scene is voxelised on the
+//!   CPU ([`voxelize`], 4× the hint resolution, redone only when geometry changes) and each RSM sample's
+//!   path to its receiver is walked through it; receivers across a wall from the hint and hints inside
+//!   solid geometry are left out, and the reconstruction ignores hints behind a surface as seen from the
+//!   pixel. The §8 camera-depth attenuation remains available.
+//! * **Secondary transport by voxel marching** (above): Eq. 8–11 deliver energy that depends strongly on
+//!   `r_max` (on `cornell` the automatic `r_max` multiplies the indirect light several times over) and
+//!   starve large rooms, where most light is two or more bounces.
+//! * The **albedo volume** of §6 is on by default: Eq. 10's white reflectance over-delivers in coloured
+//!   scenes.
+//! * **Refinement**: a still scene keeps averaging updates instead of stopping once the blend settles,
+//!   which removes the sampling noise of the injection without more samples per frame.
 //!
 //! # Data layout
 //! Per volume, storage buffers of `hints × 3 × SH coefficients` floats (cell-major, coefficient-major RGB):
-//! two bounce increments (ping-pong), the running sum, the displayed result; plus distances (vec4 per
-//! hint) and albedo (vec4 per hint). Storage buffers rather than 3D textures: every pass reads and writes
-//! the same layout, 32-bit floats keep HDR range without per-scene scaling, and no float32-filterable
-//! feature is needed (trilinear interpolation is done in the shader).
+//! two bounce increments (ping-pong), the running sum, the displayed result; plus distances and albedo
+//! with validity (a `vec4` per hint) and the occupancy bits. Storage buffers rather than 3D textures: every
+//! pass reads and writes the same layout, 32-bit floats keep HDR range without per-scene scaling, and no
+//! float32-filterable feature is needed (trilinear interpolation, with visibility, is done in the shader).
 //!
 //! # Cost (skipping what a scene does not need)
 //! No [`DiffuseGi`](crate::camera::DiffuseGi) camera or no volume: no pass runs. A volume updates only when
-//! its lights' RSMs, its settings, its transform or the scene's geometry change, and then for the few
-//! frames the temporal blend needs to converge; otherwise last frame's field is reused and only the
-//! per-pixel reconstruction runs. With the §8 depth occlusion the volume updates every frame.
+//! its lights' RSMs, its settings, its transform or the scene's geometry change, and then for the frames
+//! the blend and the refinement need; otherwise last frame's field is reused and only the per-pixel
+//! reconstruction and composite run. With the §8 depth occlusion the volume updates every frame.
 //!
 //! # Known issues
-//! * Light can still leak through walls thinner than a cell where the RSM sees both sides poorly; the
-//!   optional §8 camera-depth attenuation helps when the wall is on screen.
-//! * Skinned and morphed meshes enter the RSMs in their bind pose (see [`crate::rsm`]).
+//! * Cells must be smaller than the rooms they light and under about twice the thickness of the walls
+//!   that must stop light: the medium preset's 0.5 m cells in the 8 m cellar blur the light across door
+//!   frames, under-light the unlit room and show specks where its 20 cm dividing wall meets the ceiling
+//!   (`docs/radiance_hints.md`).
+//! * A pixel within a voxel of a perpendicular surface (a wall meeting the ceiling) reads the field at one
+//!   point instead of its hemisphere: junctions show a faint darker crease rather than light from the
+//!   next room.
+//! * The voxelisation and the RSMs see meshes on the CPU snapshot ([`crate::scene`]): skinned and morphed
+//!   meshes enter them in their bind pose.
+//! * lavapipe's timestamps of compute passes do not bracket their work: `rh_inject` and `rh_bounce` GPU
+//!   times are meaningless there (render passes are fine).
 
 pub mod dump;
 pub mod extract;
