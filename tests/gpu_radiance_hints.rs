@@ -105,16 +105,35 @@ fn cellar_light_does_not_leak_through_the_dividing_wall() {
             format!("{}: {a:.3} against {t:.3} in the ground truth: light leaks through the wall", region.name),
         );
     }
-    // Measured on lavapipe: block relative RMSE 0.3065, energy 0.865 (the paper's first bounce without
-    // visibility: 2.45 / 2.33).
+    // Specks: where the dividing wall meets the ceiling, single pixels must not pick up the next room's
+    // hints (they did, at 10× the truth, through the wall's own voxels). RH has no per-pixel noise, so
+    // no pixel there may exceed 3× the truth's mean over the strip.
+    let strip = Region::new("junction of the dividing wall and the ceiling", 0, 25, 185, 70);
+    let limit = 3.0 * luminance(strip.mean(test, &truth));
+    let specks: Vec<(u32, u32)> = (strip.y0..strip.y1)
+        .flat_map(|y| (strip.x0..strip.x1).map(move |x| (x, y)))
+        .filter(|&(x, y)| {
+            let p = image.get(x, y);
+            luminance([p[0], p[1], p[2]]) > limit
+        })
+        .collect();
+    check(
+        test,
+        specks.is_empty(),
+        &image,
+        Some(&truth),
+        format!("{} pixels above {limit:.3} along {}, e.g. {:?}", specks.len(), strip.name, specks.first()),
+    );
+    // Measured on lavapipe: block relative RMSE 0.290, energy 0.857 (the paper's first bounce without
+    // visibility: 2.51 / 2.32).
     let m = metrics::compare(&image, &truth).expect("comparable images");
     eprintln!("{test}: block {:.4}, energy {:.4}", m.block_relative_rmse, m.energy_ratio);
     check(
         test,
-        m.block_relative_rmse <= 0.36 && (0.78..=1.0).contains(&m.energy_ratio),
+        m.block_relative_rmse <= 0.33 && (0.78..=1.0).contains(&m.energy_ratio),
         &image,
         Some(&truth),
-        format!("cellar, high preset: block {:.4} (want ≤ 0.36), energy {:.4} (want 0.78–1.0)", m.block_relative_rmse, m.energy_ratio),
+        format!("cellar, high preset: block {:.4} (want ≤ 0.33), energy {:.4} (want 0.78–1.0)", m.block_relative_rmse, m.energy_ratio),
     );
 }
 
