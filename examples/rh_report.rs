@@ -200,15 +200,19 @@ fn mib(bytes: u64) -> String {
 /// The pixels of the 256² cellar view that look through the door into room A (the doorway and its frame).
 const CELLAR_DOORWAY: (u32, u32, u32, u32) = (144, 78, 172, 150);
 
-/// Σ image / Σ truth over the covered pixels inside (`inside` true) or outside the rectangle.
+/// Σ image / Σ truth over the pixels of `metrics::mask` (the mask of the energy ratio) inside (`inside`
+/// true) or outside the rectangle.
 fn energy_ratio_in(image: &HdrImage, truth: &HdrImage, rect: (u32, u32, u32, u32), inside: bool) -> f64 {
+    let Ok(mask) = metrics::mask(image, truth) else {
+        return f64::NAN;
+    };
     let (mut a, mut r) = (0.0f64, 0.0f64);
     for y in 0..truth.height {
         for x in 0..truth.width {
             let i = truth.index(x, y);
             let in_rect = x >= rect.0 && y >= rect.1 && x < rect.2 && y < rect.3;
-            if in_rect == inside && truth.covered(i) {
-                let (p, q) = (image.get(x, y), truth.get(x, y));
+            if in_rect == inside && mask[i] {
+                let (p, q) = (image.pixels[i], truth.pixels[i]);
                 a += (p[0] + p[1] + p[2]) as f64;
                 r += (q[0] + q[1] + q[2]) as f64;
             }

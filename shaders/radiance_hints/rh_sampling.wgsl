@@ -113,11 +113,6 @@ fn albedo_at(t: Trilinear) -> vec3<f32> {
     return a;
 }
 
-// The interpolated field at a world position (see `trilinear`).
-fn sample_sh(world: vec3<f32>) -> Sh {
-    return sh_at(trilinear(world));
-}
-
 // Whether a world position lies inside the volume's box.
 fn inside_volume(world: vec3<f32>) -> bool {
     let l = world_to_local(volume, world);
