@@ -180,7 +180,7 @@ fn render_headless(scene: StandardScene) -> AppExit {
     let out = std::path::PathBuf::from("out/radiance_hints.exr");
     let options = HeadlessOptions {
         scene,
-        method: HeadlessMethod::RadianceHints,
+        method: HeadlessMethod::Gi(GiMethod::RadianceHints),
         size: UVec2::new(512, 512),
         out: out.clone(),
         ..default()

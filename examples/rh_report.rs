@@ -20,7 +20,7 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use bevy::math::{UVec2, UVec3};
-use bevy_diffuse_gi::camera::{GiDebugView, GiOutput};
+use bevy_diffuse_gi::camera::{GiDebugView, GiMethod, GiOutput};
 use bevy_diffuse_gi::hdr_image::HdrImage;
 use bevy_diffuse_gi::headless::{self, HeadlessMethod, HeadlessOptions, HeadlessReport};
 use bevy_diffuse_gi::metrics::{self, ErrorMetrics};
@@ -177,7 +177,7 @@ fn median(values: &[f64]) -> f64 {
 fn rh_options(scene: StandardScene, rh: RadianceHintsVolume) -> HeadlessOptions {
     HeadlessOptions {
         scene,
-        method: HeadlessMethod::RadianceHints,
+        method: HeadlessMethod::Gi(GiMethod::RadianceHints),
         indirect_only: true,
         rh,
         frames: STILL_FRAMES,

@@ -20,15 +20,17 @@ pub struct DiffuseGi {
     /// Whether the camera shows bounced light at all. Default `true`; `false` skips every pass of this
     /// camera (volumes still update if another GI camera needs them).
     pub enabled: bool,
-    /// The GI method. Default [`GiMethod::RadianceHints`].
+    /// The GI method. Default [`GiMethod::RadianceHints`]. Changing it takes effect on the next frame;
+    /// methods that no camera uses run no pass.
     pub method: GiMethod,
     /// How the bounced light reaches the image. Default [`GiOutput::Composite`].
     pub output: GiOutput,
     /// What to show. Default [`GiDebugView::None`] (the lit image).
     pub debug_view: GiDebugView,
-    /// Reconstruct the bounced light at half the resolution in each axis and upsample it with depth- and
-    /// normal-aware weights. Default `false`. Saves about three quarters of the reconstruction's cost; the
-    /// diffuse light is smooth, so the difference is small except along thin geometry.
+    /// Compute the bounced light at half the resolution in each axis and upsample it with depth- and
+    /// normal-aware weights (the frame does this the same way for every method). Default `false`. Saves
+    /// about three quarters of the per-pixel cost (Radiance Hints' reconstruction, the VPL gather and
+    /// SSBC); the diffuse light is smooth, so the difference is small except along thin geometry.
     pub half_resolution: bool,
 }
 
@@ -52,6 +54,23 @@ pub enum GiMethod {
     /// extra bounces exchanged between hints.
     #[default]
     RadianceHints,
+    /// Instant radiosity with virtual point lights (Keller 1997), their visibility from imperfect shadow
+    /// maps (Ritschel 2008), the clamped geometry term, and screen-space bias compensation (Novák 2011).
+    /// Settings: [`VplSettings`](crate::vpl::VplSettings) on the camera.
+    Vpl,
+}
+
+impl GiMethod {
+    /// Every method, for menus.
+    pub const ALL: [GiMethod; 2] = [GiMethod::RadianceHints, GiMethod::Vpl];
+
+    /// Short name, as the headless renderer's `--method` spells it.
+    pub const fn name(self) -> &'static str {
+        match self {
+            GiMethod::RadianceHints => "rh",
+            GiMethod::Vpl => "vpl",
+        }
+    }
 }
 
 /// Where the bounced light goes.
@@ -69,6 +88,12 @@ pub enum GiOutput {
 }
 
 /// Debug views; all but [`GiDebugView::None`] replace the image.
+///
+/// The first three are the frame's and work with every method. The others belong to one method (or to
+/// the reflective shadow maps, an input shared by several): the method writes something else into the
+/// camera's indirect-light target, which the frame then shows like [`GiDebugView::IndirectOnly`] or
+/// [`GiDebugView::Irradiance`]. A view of a method the camera does not use shows that method's target
+/// as it is (usually nothing).
 #[derive(Reflect, Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 #[reflect(Clone, Default)]
 pub enum GiDebugView {
@@ -79,7 +104,7 @@ pub enum GiDebugView {
     IndirectOnly,
     /// Bounced irradiance on a white surface, `E/π × exposure`.
     Irradiance,
-    /// The hint grid: each pixel shows the irradiance of its nearest hint (no interpolation), with
+    /// Radiance Hints: each pixel shows the irradiance of its nearest hint (no interpolation), with
     /// cell borders drawn dark.
     HintGrid,
     /// The reflected flux of the first GI light's reflective shadow map (cube faces side by side).
@@ -88,11 +113,32 @@ pub enum GiDebugView {
     RsmNormal,
     /// The world positions of the first GI light's reflective shadow map (fractional metres).
     RsmPosition,
+    /// VPL: the clamped VPL gather alone (`G_b = min(G, b)`, no compensation), as indirect light.
+    VplClampedOnly,
+    /// VPL: the screen-space bias compensation alone (the energy clamping removed), as indirect light.
+    VplCompensationOnly,
+    /// VPL: the virtual point lights as dots coloured by their flux, over the irradiance.
+    VplPositions,
+}
+
+/// How the frame shows a camera's indirect-light target for a [`GiDebugView`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum TargetDisplay {
+    /// Added to the lit image.
+    Lit,
+    /// `albedo × target × exposure`, filtered.
+    Indirect,
+    /// `target × exposure`, filtered.
+    Irradiance,
+    /// `target × exposure` texel by texel (views with sharp detail: hint grid, VPL dots).
+    RawIrradiance,
+    /// The first GI light's RSM (0 flux, 1 normal, 2 position) instead of the target.
+    Rsm(u32),
 }
 
 impl GiDebugView {
     /// Every view, for menus.
-    pub const ALL: [GiDebugView; 7] = [
+    pub const ALL: [GiDebugView; 10] = [
         GiDebugView::None,
         GiDebugView::IndirectOnly,
         GiDebugView::Irradiance,
@@ -100,10 +146,23 @@ impl GiDebugView {
         GiDebugView::RsmFlux,
         GiDebugView::RsmNormal,
         GiDebugView::RsmPosition,
+        GiDebugView::VplClampedOnly,
+        GiDebugView::VplCompensationOnly,
+        GiDebugView::VplPositions,
     ];
 
-    /// The index the composite shader switches on.
-    pub const fn shader_index(self) -> u32 {
-        self as u32
+    /// How the frame shows the target in this view.
+    pub const fn display(self) -> TargetDisplay {
+        match self {
+            GiDebugView::None => TargetDisplay::Lit,
+            GiDebugView::IndirectOnly | GiDebugView::VplClampedOnly | GiDebugView::VplCompensationOnly => {
+                TargetDisplay::Indirect
+            }
+            GiDebugView::Irradiance => TargetDisplay::Irradiance,
+            GiDebugView::HintGrid | GiDebugView::VplPositions => TargetDisplay::RawIrradiance,
+            GiDebugView::RsmFlux => TargetDisplay::Rsm(0),
+            GiDebugView::RsmNormal => TargetDisplay::Rsm(1),
+            GiDebugView::RsmPosition => TargetDisplay::Rsm(2),
+        }
     }
 }

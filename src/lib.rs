@@ -20,9 +20,10 @@
 //!     .run();
 //! ```
 //!
-//! Modules: [`rsm`] (reflective shadow maps), [`radiance_hints`] (the method), [`composite`] (adding the
-//! light to the image, debug views), [`camera`] and [`light`] (the user's components), [`ui`] (the egui
-//! panel, feature `egui`). The measuring instruments: [`scene`] (CPU snapshot of the world), [`reference`](mod@reference)
+//! Modules: [`composite`] (the GI frame every method shares: the per-view indirect-light target, the
+//! composite into the image, debug views), the methods [`radiance_hints`] and [`vpl`] (with the
+//! screen-space bias compensation of [`ssbc`]), their shared input [`rsm`] (reflective shadow maps),
+//! [`camera`] and [`light`] (the user's components), [`ui`] (the egui panel, feature `egui`). The measuring instruments: [`scene`] (CPU snapshot of the world), [`reference`](mod@reference)
 //! (path-traced ground truth), [`metrics`] (errors), [`scenes`] (standard scenes), [`headless`].
 
 pub mod camera;
@@ -39,8 +40,10 @@ pub mod sampling;
 pub mod scene;
 pub mod scenes;
 pub mod sh;
+pub mod ssbc;
 #[cfg(feature = "egui")]
 pub mod ui;
+pub mod vpl;
 
 use bevy::pbr::DefaultOpaqueRendererMethod;
 use bevy::prelude::*;
@@ -53,6 +56,7 @@ pub mod prelude {
     pub use crate::light::GiLight;
     pub use crate::radiance_hints::{DepthOcclusion, RadianceHintsVolume};
     pub use crate::sh::ShOrder;
+    pub use crate::vpl::VplSettings;
     #[cfg(feature = "egui")]
     pub use crate::ui::DiffuseGiInspectorPlugin;
 }
@@ -85,10 +89,29 @@ impl Plugin for DiffuseGiPlugin {
         app.register_type::<light::GiLight>().add_plugins((
             scene::SceneSnapshotPlugin,
             rsm::RsmPlugin,
-            radiance_hints::RadianceHintsPlugin,
             composite::CompositePlugin,
+            radiance_hints::RadianceHintsPlugin,
+            vpl::VplPlugin,
+            ssbc::SsbcPlugin,
         ));
     }
+}
+
+/// Threads per workgroup of every 1D compute pass of the crate; the shaders get it as the
+/// `WORKGROUP_SIZE` shader def (see [`shared_shader_defs`]).
+pub const WORKGROUP_SIZE: u32 = 64;
+
+/// Shader defs every pipeline of the crate gets, so that sizes and enumerations shared between Rust and
+/// WGSL are written once, here: `WORKGROUP_SIZE` and the light kinds of [`rsm`]
+/// (`LIGHT_KIND_DIRECTIONAL`, `LIGHT_KIND_SPOT`, `LIGHT_KIND_POINT`).
+pub fn shared_shader_defs() -> Vec<bevy::shader::ShaderDefVal> {
+    use bevy::shader::ShaderDefVal::UInt;
+    vec![
+        UInt("WORKGROUP_SIZE".into(), WORKGROUP_SIZE),
+        UInt("LIGHT_KIND_DIRECTIONAL".into(), rsm::KIND_DIRECTIONAL),
+        UInt("LIGHT_KIND_SPOT".into(), rsm::KIND_SPOT),
+        UInt("LIGHT_KIND_POINT".into(), rsm::KIND_POINT),
+    ]
 }
 
 /// Every warning the plugin has logged about the app's settings or the GPU, in order (each is logged

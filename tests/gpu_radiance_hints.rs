@@ -6,7 +6,7 @@ mod common;
 
 use std::path::PathBuf;
 
-use bevy_diffuse_gi::camera::GiOutput;
+use bevy_diffuse_gi::camera::{GiMethod, GiOutput};
 use bevy_diffuse_gi::hdr_image::HdrImage;
 use bevy_diffuse_gi::headless::{HeadlessMethod, HeadlessOptions};
 use bevy_diffuse_gi::metrics;
@@ -22,7 +22,7 @@ fn ground_truth(name: &str) -> HdrImage {
 fn rh(scene: StandardScene, rh: RadianceHintsVolume) -> HdrImage {
     render(&HeadlessOptions {
         scene,
-        method: HeadlessMethod::RadianceHints,
+        method: HeadlessMethod::Gi(GiMethod::RadianceHints),
         indirect_only: true,
         rh,
         ..Default::default()
@@ -154,7 +154,7 @@ fn absurd_settings_are_clamped_and_still_render_finite_light() {
         ..RadianceHintsVolume::LOW
     };
     let image = render(&HeadlessOptions {
-        method: HeadlessMethod::RadianceHints,
+        method: HeadlessMethod::Gi(GiMethod::RadianceHints),
         indirect_only: true,
         rh: settings,
         rh_fit_cells: false,
@@ -172,7 +172,7 @@ fn half_resolution_stays_close_to_full_resolution() {
     let test = "rh_half_resolution";
     let full = rh(StandardScene::Cornell, RadianceHintsVolume::LOW);
     let half = render(&HeadlessOptions {
-        method: HeadlessMethod::RadianceHints,
+        method: HeadlessMethod::Gi(GiMethod::RadianceHints),
         indirect_only: true,
         rh: RadianceHintsVolume::LOW,
         half_resolution: true,
@@ -196,7 +196,7 @@ fn irradiance_volume_output_lights_the_scene_through_bevys_light_probe() {
     let test = "rh_irradiance_volume_output";
     let direct = render(&HeadlessOptions::default()).image;
     let lit = render(&HeadlessOptions {
-        method: HeadlessMethod::RadianceHints,
+        method: HeadlessMethod::Gi(GiMethod::RadianceHints),
         gi_output: GiOutput::IrradianceVolume,
         ..Default::default()
     })

@@ -1,7 +1,7 @@
 // Adds a GI method's indirect light to the camera's HDR target, or shows a debug view instead.
 //
-// The GI target holds Σ w·E/π (rgb) and Σ w (a) over the volumes covering each pixel (see the methods'
-// reconstruction passes). The light added is `albedo × E/π × exposure`, with the albedo decoded from Bevy's
+// The GI target holds Σ w·E/π (rgb) and Σ w (a), written by whichever method the camera uses (Radiance
+// Hints sums its volumes there; the VPL gather writes weight 1). The light added is `albedo × E/π × exposure`, with the albedo decoded from Bevy's
 // G-buffer (base colour stored gamma-2.2, times 1 − metallic): the indirect-only image of the metrics.
 // The reconstruction rotates its hemisphere samples per pixel (interleaved gradient noise), which turns
 // differences between hints into a fine pattern; the composite filters it away. At full resolution each
@@ -12,17 +12,13 @@
 #import bevy_render::view::View
 #import bevy_pbr::pbr_deferred_types::{unpack_24bit_normal, unpack_unorm4x8_, unpack_flags, DEFERRED_FLAGS_UNLIT_BIT}
 #import bevy_pbr::utils::octahedral_decode
-#if DEBUG_VIEW == 3
-#import bevy_diffuse_gi::rh_types::{PI, world_to_local, cell_index, sh_irradiance}
-#import bevy_diffuse_gi::rh_sampling::{volume, load_sh}
-#endif
 
 @group(0) @binding(0) var<uniform> view: View;
 @group(0) @binding(1) var depth_texture: texture_depth_2d;
 @group(0) @binding(2) var gbuffer: texture_2d<u32>;
 @group(0) @binding(3) var gi_texture: texture_2d<f32>;
 
-#if DEBUG_VIEW >= 4
+#if DISPLAY >= 4
 struct RsmDebug {
     first_layer: u32,
     faces: u32,
@@ -35,8 +31,9 @@ struct RsmDebug {
 @group(1) @binding(3) var<uniform> rsm_debug: RsmDebug;
 #endif
 
-// 0 none (add), 1 indirect only, 2 irradiance, 3 hint grid, 4 RSM flux, 5 RSM normal, 6 RSM position.
-const DEBUG_VIEW: u32 = #{DEBUG_VIEW}u;
+// 0 add to the lit image, 1 indirect only, 2 irradiance, 3 irradiance texel by texel (no filter),
+// 4 RSM flux, 5 RSM normal, 6 RSM position (see `TargetDisplay` in src/camera.rs).
+const DISPLAY: u32 = #{DISPLAY}u;
 const GI_SCALE: i32 = #{GI_SCALE};
 
 fn view_depth(depth: f32) -> f32 {
@@ -96,7 +93,7 @@ fn gi_at(pixel: vec2<i32>, n: vec3<f32>, depth: f32) -> vec3<f32> {
 @fragment
 fn composite(in: FullscreenVertexOutput) -> @location(0) vec4<f32> {
     let pixel = vec2<i32>(floor(in.position.xy));
-#if DEBUG_VIEW >= 4
+#if DISPLAY >= 4
     // The first GI light's RSM, its faces side by side.
     let size = vec2<f32>(textureDimensions(depth_texture));
     let faces = max(rsm_debug.faces, 1u);
@@ -105,9 +102,9 @@ fn composite(in: FullscreenVertexOutput) -> @location(0) vec4<f32> {
     let texel = vec2<i32>(vec2(fract(u), in.uv.y) * f32(rsm_debug.resolution));
     let layer = i32(rsm_debug.first_layer + face);
     var c = vec3(0.0);
-    if DEBUG_VIEW == 4u {
+    if DISPLAY == 4u {
         c = textureLoad(rsm_flux, texel, layer, 0).rgb * rsm_debug.flux_display_scale;
-    } else if DEBUG_VIEW == 5u {
+    } else if DISPLAY == 5u {
         c = textureLoad(rsm_normal, texel, layer, 0).xyz * 0.5 + 0.5;
     } else {
         let p = textureLoad(rsm_position, texel, layer, 0);
@@ -117,7 +114,7 @@ fn composite(in: FullscreenVertexOutput) -> @location(0) vec4<f32> {
 #else
     let depth = textureLoad(depth_texture, pixel, 0);
     if depth <= 0.0 {
-        if DEBUG_VIEW == 0u {
+        if DISPLAY == 0u {
             discard;
         }
         return vec4(0.0);
@@ -128,28 +125,16 @@ fn composite(in: FullscreenVertexOutput) -> @location(0) vec4<f32> {
     let base_color = pow(unpack_unorm4x8_(g.r).rgb, vec3(2.2));
     let metallic = unpack_unorm4x8_(g.b).g;
     let albedo = select(base_color * (1.0 - metallic), vec3(0.0), unlit);
-#if DEBUG_VIEW == 3
-    let uv = (vec2<f32>(pixel) + 0.5) / vec2<f32>(textureDimensions(depth_texture));
-    let world_h = view.world_from_clip * vec4(uv.x * 2.0 - 1.0, 1.0 - uv.y * 2.0, depth, 1.0);
-    let local = world_to_local(volume, world_h.xyz / world_h.w);
-    if any(abs(local) > vec3(0.5)) {
-        return vec4(0.0, 0.0, 0.0, 1.0);
-    }
-    let res = volume.resolution.xyz;
-    let g_pos = (local + 0.5) * vec3<f32>(res);
-    let cell = min(vec3<u32>(g_pos), res - 1u);
-    let e = sh_irradiance(load_sh(cell_index(cell, res)), n) / PI * view.exposure;
-    // Darken the cell borders.
-    let edge = min(fract(g_pos), 1.0 - fract(g_pos));
-    let border = select(1.0, 0.35, min(edge.x, min(edge.y, edge.z)) < 0.04);
-    return vec4(e * border, 1.0);
+#if DISPLAY == 3
+    let texel = min(pixel / GI_SCALE, vec2<i32>(textureDimensions(gi_texture)) - 1);
+    return vec4(resolve(textureLoad(gi_texture, texel, 0)) * view.exposure, 1.0);
 #else
     let gi = gi_at(pixel, n, depth);
-    if DEBUG_VIEW == 2u {
+    if DISPLAY == 2u {
         return vec4(gi * view.exposure, 1.0);
     }
     let light = albedo * gi * view.exposure;
-    if DEBUG_VIEW == 1u {
+    if DISPLAY == 1u {
         return vec4(light, 1.0);
     }
     if unlit {

@@ -7,7 +7,7 @@
 @group(0) @binding(1) var<storage, read> sum: array<f32>;
 @group(0) @binding(2) var<storage, read_write> result: array<f32>;
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(#{WORKGROUP_SIZE})
 fn blend(@builtin(global_invocation_id) gid: vec3<u32>) {
     let index = gid.x;
     if index >= volume.resolution.w {

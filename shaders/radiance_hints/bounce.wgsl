@@ -37,13 +37,13 @@
 // Per workgroup: (luminance of this bounce's DC terms, luminance of the running sum's DC terms).
 @group(0) @binding(2) var<storage, read_write> partials: array<vec2<f32>>;
 
-var<workgroup> shared_energy: array<vec2<f32>, 64>;
+var<workgroup> shared_energy: array<vec2<f32>, #{WORKGROUP_SIZE}>;
 
 fn luminance(c: vec3<f32>) -> f32 {
     return dot(c, vec3(0.2126, 0.7152, 0.0722));
 }
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(#{WORKGROUP_SIZE})
 fn bounce(
     @builtin(global_invocation_id) gid: vec3<u32>,
     @builtin(local_invocation_index) lid: u32,
@@ -145,7 +145,7 @@ fn bounce(
     // Workgroup sum of the DC energies, for the early stop.
     shared_energy[lid] = energy;
     workgroupBarrier();
-    for (var stride = 32u; stride > 0u; stride >>= 1u) {
+    for (var stride = #{WORKGROUP_SIZE}u / 2u; stride > 0u; stride >>= 1u) {
         if lid < stride {
             shared_energy[lid] += shared_energy[lid + stride];
         }

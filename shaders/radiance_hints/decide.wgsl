@@ -11,17 +11,17 @@
 // [0]: extra bounces computed in the last update.
 @group(0) @binding(3) var<storage, read_write> stats: array<u32>;
 
-var<workgroup> sums: array<vec2<f32>, 64>;
+var<workgroup> sums: array<vec2<f32>, #{WORKGROUP_SIZE}>;
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(#{WORKGROUP_SIZE})
 fn decide(@builtin(local_invocation_index) lid: u32) {
     var s = vec2(0.0);
-    for (var i = lid; i < volume.workgroups; i += 64u) {
+    for (var i = lid; i < volume.workgroups; i += #{WORKGROUP_SIZE}u) {
         s += partials[i];
     }
     sums[lid] = s;
     workgroupBarrier();
-    for (var stride = 32u; stride > 0u; stride >>= 1u) {
+    for (var stride = #{WORKGROUP_SIZE}u / 2u; stride > 0u; stride >>= 1u) {
         if lid < stride {
             sums[lid] += sums[lid + stride];
         }

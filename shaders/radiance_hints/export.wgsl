@@ -12,7 +12,7 @@
 
 @group(0) @binding(0) var output: texture_storage_3d<rgba16float, write>;
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(#{WORKGROUP_SIZE})
 fn export_irradiance(@builtin(global_invocation_id) gid: vec3<u32>) {
     let index = gid.x;
     if index >= volume.resolution.w {

@@ -30,15 +30,7 @@
 #import bevy_render::view::View
 #endif
 
-struct GiLight {
-    clip_from_world: mat4x4<f32>,
-    flux_scale: f32,
-    sample_fraction: f32,
-    first_layer: u32,
-    faces: u32,
-    resolution: u32,
-    kind: u32,
-}
+#import bevy_diffuse_gi::rsm_types::{GiLight, LIGHT_KIND_DIRECTIONAL}
 
 @group(0) @binding(0) var<uniform> volume: RhVolume;
 @group(0) @binding(1) var<storage, read_write> out_delta: array<f32>;
@@ -89,7 +81,7 @@ fn disk(u: vec2<f32>) -> vec2<f32> {
     return r * vec2(cos(phi), sin(phi));
 }
 
-@compute @workgroup_size(64)
+@compute @workgroup_size(#{WORKGROUP_SIZE})
 fn inject(@builtin(global_invocation_id) gid: vec3<u32>) {
     let index = gid.x;
     if index >= volume.resolution.w {
@@ -116,7 +108,7 @@ fn inject(@builtin(global_invocation_id) gid: vec3<u32>) {
         let samples = u32(max(round(f32(volume.rsm_samples) * light.sample_fraction), 1.0));
         let res_l = f32(light.resolution);
         // c_RSM: directional lights may sample a disk around the hint's projection (§4).
-        let use_disk = light.kind == 0u && volume.coverage < 0.75;
+        let use_disk = light.kind == LIGHT_KIND_DIRECTIONAL && volume.coverage < 0.75;
         var disk_center = vec2(0.5);
         let radius = sqrt(volume.coverage / PI);
         var texels = f32(light.faces) * res_l * res_l;

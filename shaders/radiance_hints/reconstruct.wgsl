@@ -14,8 +14,8 @@
 #import bevy_render::view::View
 #import bevy_pbr::pbr_deferred_types::unpack_24bit_normal
 #import bevy_pbr::utils::{octahedral_decode, interleaved_gradient_noise}
-#import bevy_diffuse_gi::rh_types::{PI, world_to_local, local_to_occupancy, sh_irradiance}
-#import bevy_diffuse_gi::rh_sampling::{volume, trilinear, sh_at}
+#import bevy_diffuse_gi::rh_types::{PI, world_to_local, local_to_occupancy, sh_irradiance, cell_index}
+#import bevy_diffuse_gi::rh_sampling::{volume, trilinear, sh_at, load_sh}
 #import bevy_diffuse_gi::rh_occupancy::first_hit_inclusive
 
 @group(0) @binding(0) var<uniform> view: View;
@@ -56,6 +56,18 @@ fn reconstruct(in: FullscreenVertexOutput) -> @location(0) vec4<f32> {
     }
 
     let n = octahedral_decode(unpack_24bit_normal(textureLoad(gbuffer, pixel, 0).a));
+#ifdef HINT_GRID
+    // Debug view: the nearest hint's irradiance, no interpolation, cell borders darkened.
+    if any(abs(local) > vec3(0.5)) {
+        discard;
+    }
+    let res = volume.resolution.xyz;
+    let g_pos = (local + 0.5) * vec3<f32>(res);
+    let cell = min(vec3<u32>(g_pos), res - 1u);
+    let edge = min(fract(g_pos), 1.0 - fract(g_pos));
+    let border = select(1.0, 0.35, min(edge.x, min(edge.y, edge.z)) < 0.04);
+    return vec4(sh_irradiance(load_sh(cell_index(cell, res)), n) / PI * border, 1.0);
+#else
     let r = volume.cell.w;
     let origin = world + n * (0.5 * r);
     let frame = basis(n);
@@ -104,4 +116,5 @@ fn reconstruct(in: FullscreenVertexOutput) -> @location(0) vec4<f32> {
     irradiance /= used;
     let radiance_per_albedo = irradiance / PI;
     return vec4(radiance_per_albedo * weight, weight);
+#endif
 }

@@ -10,19 +10,7 @@
 //   spot/point:  I · cone · range · ω   (intensity × Bevy's cone and range falloff × the texel's solid angle,
 //                                        ω = (2 tan(fov/2) / res)² · cos³α for a texel at angle α off the axis)
 
-struct RsmFace {
-    clip_from_world: mat4x4<f32>,
-    // xyz: light position (local lights); w: 0 directional, 1 spot, 2 point
-    light_position: vec4<f32>,
-    // xyz: face axis (directional: the direction light travels); w: unused
-    axis: vec4<f32>,
-    // xyz: spot direction (spot lights); w: unused
-    spot_direction: vec4<f32>,
-    // rgb: illuminance (lux) or intensity (cd) divided by `flux_scale`'s photometric part
-    color: vec4<f32>,
-    // x: spot_scale, y: spot_offset, z: 1/range², w: texel measure (A⊥ in m² or (2 tan(fov/2)/res)² in sr)
-    params: vec4<f32>,
-}
+#import bevy_diffuse_gi::rsm_types::{RsmFace, LIGHT_KIND_DIRECTIONAL, LIGHT_KIND_SPOT}
 
 @group(0) @binding(0) var<uniform> face: RsmFace;
 
@@ -60,12 +48,11 @@ const MIN_COS: f32 = 0.05;
 
 @fragment
 fn fragment(in: VertexOut) -> FragmentOut {
-    let kind = face.light_position.w;
     var to_light: vec3<f32>;
     var flux_factor: f32;
     var area: f32;
     var n = normalize(in.normal);
-    if kind < 0.5 {
+    if face.kind == LIGHT_KIND_DIRECTIONAL {
         // Directional: parallel light travelling along `axis`.
         to_light = -face.axis.xyz;
         let cos_theta = max(abs(dot(n, to_light)), MIN_COS);
@@ -83,7 +70,7 @@ fn fragment(in: VertexOut) -> FragmentOut {
         let factor = d2 * face.params.z;
         let smooth_factor = saturate(1.0 - factor * factor);
         var falloff = smooth_factor * smooth_factor;
-        if kind < 1.5 {
+        if face.kind == LIGHT_KIND_SPOT {
             let cone = saturate(dot(-to_light, face.spot_direction.xyz) * face.params.x + face.params.y);
             falloff *= cone * cone;
         }

@@ -1,10 +1,19 @@
-//! Adds a GI method's indirect light into the camera's HDR target after the opaque pass, or replaces the
-//! image with a debug view ([`GiDebugView`]).
+//! The GI frame: what every method shares, and knows no method.
 //!
-//! Each GI camera gets a GI target (`Rgba16Float`, full or half resolution) that the method's
-//! reconstruction fills with `Σ w·E/π` and `Σ w`; this pass multiplies by the G-buffer albedo and the
-//! exposure and adds the result with `One + One` blending, between `main_opaque_pass_3d` and
-//! `main_transparent_pass_3d` (so transparent surfaces are drawn over lit opaque ones, not lit themselves).
+//! * **Cameras**: [`ExtractedDiffuseGi`] is the render-world copy of a camera's
+//!   [`DiffuseGi`](crate::camera::DiffuseGi), present while the camera is active and GI is on.
+//! * **The per-view indirect-light target** ([`GiViewTarget`], `Rgba16Float`, full or half resolution):
+//!   the camera's method writes `Σ w·E/π` (rgb) and `Σ w` (a) into it during [`GiViewSystems::Produce`]
+//!   (after the prepass, before the main pass; the target is cleared first, so a method switched off
+//!   leaves nothing behind) and may refine it during [`GiViewSystems::Refine`] (after the opaque pass,
+//!   which some refinements read, e.g. screen-space bias compensation).
+//! * **The composite**: multiplies by the G-buffer albedo and the exposure and adds the result with
+//!   `One + One` blending, between `main_opaque_pass_3d` and `main_transparent_pass_3d` (so transparent
+//!   surfaces are drawn over lit opaque ones, not lit themselves). The same depth- and normal-aware filter
+//!   upsamples a half-resolution target for every method. Debug views ([`GiDebugView`]) replace the image;
+//!   they read the target (or the reflective shadow maps, a shared input) and nothing of any method.
+//!
+//! Methods import this module's public types; this module imports no method.
 
 use bevy::core_pipeline::prepass::ViewPrepassTextures;
 use bevy::core_pipeline::FullscreenShader;
@@ -19,16 +28,41 @@ use bevy::render::texture::{CachedTexture, TextureCache};
 use bevy::render::view::{ViewTarget, ViewUniform, ViewUniformOffset, ViewUniforms};
 use bevy::shader::{Shader, ShaderDefVal};
 
-use crate::camera::{GiDebugView, GiOutput};
-use crate::radiance_hints::extract::ExtractedDiffuseGi;
-use crate::radiance_hints::prepare::{GI_TARGET_FORMAT, RhPipelines, RhVolumesGpu};
-use crate::rsm::RsmAtlas;
-use crate::sh::ShOrder;
+use bevy::render::Extract;
+use bevy::render::sync_world::RenderEntity;
 
-/// The camera's GI target for this frame.
+use crate::camera::{DiffuseGi, GiDebugView, GiOutput, TargetDisplay};
+use crate::rsm::RsmAtlas;
+
+/// Format of the per-camera indirect-light target.
+pub const GI_TARGET_FORMAT: TextureFormat = TextureFormat::Rgba16Float;
+
+/// The camera's [`DiffuseGi`] in the render world (present only while the camera is active and GI is on).
+#[derive(Component, Clone, Debug, PartialEq)]
+pub struct ExtractedDiffuseGi(pub DiffuseGi);
+
+impl ExtractedDiffuseGi {
+    /// Pixels per target texel along each axis: 1 at full resolution, 2 at half.
+    pub fn scale(&self) -> u32 {
+        if self.0.half_resolution { 2 } else { 1 }
+    }
+}
+
+/// The camera's indirect-light target for this frame: `Σ w·E/π` (rgb) and `Σ w` (a).
 #[derive(Component)]
 pub struct GiViewTarget {
     pub texture: CachedTexture,
+    /// Pixels per texel along each axis (1 or 2).
+    pub scale: u32,
+}
+
+/// Where a method's per-view passes go in `Core3d`.
+#[derive(SystemSet, Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum GiViewSystems {
+    /// After the prepass (depth and G-buffer are ready), before the main pass: write the target.
+    Produce,
+    /// After the opaque pass (the direct light is in the view's main texture), before the composite.
+    Refine,
 }
 
 /// What the RSM debug views show: the first GI light's faces.
@@ -44,10 +78,19 @@ struct RsmDebugUniform {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct CompositeKey {
     pub format: TextureFormat,
-    pub debug_view: GiDebugView,
+    pub display: TargetDisplay,
     pub half_resolution: bool,
-    /// SH order of the first volume (the hint-grid view reads it).
-    pub sh_order: ShOrder,
+}
+
+/// The composite shader's `DISPLAY` value for a display mode.
+fn display_index(display: TargetDisplay) -> u32 {
+    match display {
+        TargetDisplay::Lit => 0,
+        TargetDisplay::Indirect => 1,
+        TargetDisplay::Irradiance => 2,
+        TargetDisplay::RawIrradiance => 3,
+        TargetDisplay::Rsm(k) => 4 + k.min(2),
+    }
 }
 
 /// The composite pipelines and their layouts.
@@ -55,7 +98,6 @@ pub struct CompositeKey {
 pub struct CompositePipelines {
     view_layout: BindGroupLayoutDescriptor,
     rsm_layout: BindGroupLayoutDescriptor,
-    sample_layout: BindGroupLayoutDescriptor,
     shader: Handle<Shader>,
     fullscreen: VertexState,
     rsm_debug: UniformBuffer<RsmDebugUniform>,
@@ -93,7 +135,6 @@ impl FromWorld for CompositePipelines {
                     ),
                 ),
             ),
-            sample_layout: world.resource::<RhPipelines>().sample_layout.clone(),
             shader: world.resource::<CompositeShader>().0.clone(),
             fullscreen: world.resource::<FullscreenShader>().to_vertex_state(),
             rsm_debug: UniformBuffer::default(),
@@ -105,14 +146,11 @@ impl SpecializedRenderPipeline for CompositePipelines {
     type Key = CompositeKey;
 
     fn specialize(&self, key: Self::Key) -> RenderPipelineDescriptor {
-        let view = key.debug_view.shader_index();
         let mut layout = vec![self.view_layout.clone()];
-        match key.debug_view {
-            GiDebugView::HintGrid => layout.push(self.sample_layout.clone()),
-            GiDebugView::RsmFlux | GiDebugView::RsmNormal | GiDebugView::RsmPosition => layout.push(self.rsm_layout.clone()),
-            _ => {}
+        if matches!(key.display, TargetDisplay::Rsm(_)) {
+            layout.push(self.rsm_layout.clone());
         }
-        let blend = (key.debug_view == GiDebugView::None).then_some(BlendState {
+        let blend = (key.display == TargetDisplay::Lit).then_some(BlendState {
             color: BlendComponent {
                 src_factor: BlendFactor::One,
                 dst_factor: BlendFactor::One,
@@ -131,9 +169,8 @@ impl SpecializedRenderPipeline for CompositePipelines {
             fragment: Some(FragmentState {
                 shader: self.shader.clone(),
                 shader_defs: vec![
-                    ShaderDefVal::UInt("DEBUG_VIEW".into(), view),
+                    ShaderDefVal::UInt("DISPLAY".into(), display_index(key.display)),
                     ShaderDefVal::Int("GI_SCALE".into(), if key.half_resolution { 2 } else { 1 }),
-                    ShaderDefVal::UInt("SH_COEFS".into(), key.sh_order.coefficients() as u32),
                 ],
                 entry_point: Some("composite".into()),
                 targets: vec![Some(ColorTargetState {
@@ -160,17 +197,15 @@ pub(crate) fn prepare_composite(
     mut pipelines: ResMut<CompositePipelines>,
     mut specialized: ResMut<SpecializedRenderPipelines<CompositePipelines>>,
     pipeline_cache: Res<PipelineCache>,
-    volumes: Res<RhVolumesGpu>,
     atlas: Res<RsmAtlas>,
     device: Res<RenderDevice>,
     queue: Res<RenderQueue>,
 ) {
-    let sh_order = volumes.volumes.first().map_or(ShOrder::Two, |v| v.settings.sh_order);
     for (entity, camera, gi, target) in &views {
         let Some(size) = camera.physical_viewport_size else {
             continue;
         };
-        let scale = if gi.0.half_resolution { 2 } else { 1 };
+        let scale = gi.scale();
         let texture = texture_cache.get(
             &device,
             TextureDescriptor {
@@ -190,12 +225,11 @@ pub(crate) fn prepare_composite(
         );
         let key = CompositeKey {
             format: target.main_texture_format(),
-            debug_view: gi.0.debug_view,
+            display: gi.0.debug_view.display(),
             half_resolution: gi.0.half_resolution,
-            sh_order,
         };
         let id = specialized.specialize(&pipeline_cache, &pipelines, key);
-        commands.entity(entity).insert((GiViewTarget { texture }, CompositePipelineId(id)));
+        commands.entity(entity).insert((GiViewTarget { texture, scale }, CompositePipelineId(id)));
     }
     let first = atlas.slots.first();
     pipelines.rsm_debug.set(RsmDebugUniform {
@@ -220,7 +254,6 @@ pub(crate) fn composite_gi(
     pipelines: Res<CompositePipelines>,
     pipeline_cache: Res<PipelineCache>,
     view_uniforms: Res<ViewUniforms>,
-    volumes: Res<RhVolumesGpu>,
     atlas: Res<RsmAtlas>,
     mut ctx: RenderContext,
 ) {
@@ -244,27 +277,16 @@ pub(crate) fn composite_gi(
         &pipeline_cache.get_bind_group_layout(&pipelines.view_layout),
         &BindGroupEntries::sequential((uniforms, depth, gbuffer, &gi_target.texture.default_view)),
     );
-    let extra = match debug_view {
-        GiDebugView::HintGrid => {
-            let Some((groups, offset)) = volumes
-                .volumes
-                .first()
-                .and_then(|v| v.bind_groups.as_ref().map(|g| (g.sample_result.clone(), v.uniform_offsets[0])))
-            else {
-                return;
-            };
-            Some((groups, Some(offset)))
-        }
-        GiDebugView::RsmFlux | GiDebugView::RsmNormal | GiDebugView::RsmPosition => {
+    let rsm_group = match debug_view.display() {
+        TargetDisplay::Rsm(_) => {
             let Some(debug) = pipelines.rsm_debug.binding() else {
                 return;
             };
-            let group = device.create_bind_group(
+            Some(device.create_bind_group(
                 "diffuse_gi_composite_rsm_bind_group",
                 &pipeline_cache.get_bind_group_layout(&pipelines.rsm_layout),
                 &BindGroupEntries::sequential((&atlas.position_view, &atlas.normal_view, &atlas.flux_view, debug)),
-            );
-            Some((group, None))
+            ))
         }
         _ => None,
     };
@@ -291,18 +313,64 @@ pub(crate) fn composite_gi(
         });
         pass.set_render_pipeline(pipeline);
         pass.set_bind_group(0, &view_group, &[view_offset.offset]);
-        if let Some((group, offset)) = &extra {
-            match offset {
-                Some(offset) => pass.set_bind_group(1, group, &[*offset]),
-                None => pass.set_bind_group(1, group, &[]),
-            }
+        if let Some(group) = &rsm_group {
+            pass.set_bind_group(1, group, &[]);
         }
         pass.draw(0..3, 0..1);
     }
     span.end(ctx.command_encoder());
 }
 
-/// Registers the composite pass. Added by [`crate::DiffuseGiPlugin`].
+/// Clears the camera's indirect-light target before its method writes it, so that a method switched
+/// off (or one whose pipelines are still compiling) leaves no stale light. Methods order their
+/// [`GiViewSystems::Produce`] passes `.after(clear_gi_target)` and draw with `LoadOp::Load`.
+pub fn clear_gi_target(view: ViewQuery<&GiViewTarget, With<ExtractedDiffuseGi>>, mut ctx: RenderContext) {
+    let target = view.into_inner();
+    let pass = ctx.command_encoder().begin_render_pass(&RenderPassDescriptor {
+        label: Some("diffuse_gi_clear_target"),
+        color_attachments: &[Some(RenderPassColorAttachment {
+            view: &target.texture.default_view,
+            depth_slice: None,
+            resolve_target: None,
+            ops: Operations {
+                load: LoadOp::Clear(default()),
+                store: StoreOp::Store,
+            },
+        })],
+        depth_stencil_attachment: None,
+        timestamp_writes: None,
+        occlusion_query_set: None,
+        multiview_mask: None,
+    });
+    drop(pass);
+}
+
+/// Copies each camera's [`DiffuseGi`] into the render world (removing it from cameras that lost it or
+/// turned it off).
+pub(crate) fn extract_cameras(
+    mut commands: Commands,
+    cameras: Extract<Query<(RenderEntity, &Camera, &DiffuseGi)>>,
+    without: Extract<Query<RenderEntity, (With<Camera>, Without<DiffuseGi>)>>,
+) {
+    for entity in &without {
+        if let Ok(mut entity) = commands.get_entity(entity) {
+            entity.remove::<(ExtractedDiffuseGi, GiViewTarget)>();
+        }
+    }
+    for (entity, camera, gi) in &cameras {
+        let Ok(mut entity) = commands.get_entity(entity) else {
+            continue;
+        };
+        if camera.is_active && gi.enabled {
+            entity.insert(ExtractedDiffuseGi(gi.clone()));
+        } else {
+            entity.remove::<(ExtractedDiffuseGi, GiViewTarget)>();
+        }
+    }
+}
+
+/// The GI frame: camera extraction, the per-view target, the composite and the frame's debug views.
+/// Added by [`crate::DiffuseGiPlugin`].
 pub struct CompositePlugin;
 
 impl Plugin for CompositePlugin {
@@ -312,37 +380,40 @@ impl Plugin for CompositePlugin {
             "composite/composite.wgsl",
             include_str!("../../shaders/composite/composite.wgsl"),
         );
-        if let Some(render_app) = app.get_sub_app_mut(RenderApp) {
-            render_app.insert_resource(CompositeShader(shader));
-        }
+        let Some(render_app) = app.get_sub_app_mut(RenderApp) else {
+            return;
+        };
+        render_app
+            .insert_resource(CompositeShader(shader))
+            .init_resource::<SpecializedRenderPipelines<CompositePipelines>>()
+            .add_systems(RenderStartup, init_composite_pipelines)
+            .add_systems(ExtractSchedule, extract_cameras)
+            .add_systems(Render, prepare_composite.in_set(RenderSystems::PrepareResources))
+            .configure_sets(
+                Core3d,
+                (
+                    GiViewSystems::Produce.after(Core3dSystems::Prepass).before(Core3dSystems::MainPass),
+                    GiViewSystems::Refine
+                        .after(main_opaque_pass_3d)
+                        .before(main_transparent_pass_3d)
+                        .in_set(Core3dSystems::MainPass),
+                ),
+            )
+            .add_systems(
+                Core3d,
+                (
+                    clear_gi_target.in_set(GiViewSystems::Produce),
+                    composite_gi
+                        .after(GiViewSystems::Refine)
+                        .before(main_transparent_pass_3d)
+                        .in_set(Core3dSystems::MainPass),
+                ),
+            );
     }
 }
 
 use bevy::core_pipeline::{Core3d, Core3dSystems};
-use bevy::render::{Render, RenderApp, RenderSystems};
-
-/// Adds the composite's render-world systems; called from the crate plugin's `finish`.
-pub(crate) fn add_render_systems(render_app: &mut SubApp) {
-    render_app
-        .init_resource::<SpecializedRenderPipelines<CompositePipelines>>()
-        .add_systems(
-            bevy::render::RenderStartup,
-            init_composite_pipelines.after(super::radiance_hints::init_rh_pipelines),
-        )
-        .add_systems(
-            Render,
-            prepare_composite
-                .in_set(RenderSystems::PrepareResources)
-                .after(crate::radiance_hints::prepare::prepare_rh_volumes),
-        )
-        .add_systems(
-            Core3d,
-            composite_gi
-                .after(main_opaque_pass_3d)
-                .before(main_transparent_pass_3d)
-                .in_set(Core3dSystems::MainPass),
-        );
-}
+use bevy::render::{ExtractSchedule, Render, RenderApp, RenderStartup, RenderSystems};
 
 fn init_composite_pipelines(world: &mut World) {
     let pipelines = CompositePipelines::from_world(world);

@@ -38,7 +38,7 @@ use bevy::window::ExitCondition;
 use bevy::winit::WinitPlugin;
 use serde_json::{Value, json};
 
-use crate::camera::{DiffuseGi, GiDebugView};
+use crate::camera::{DiffuseGi, GiDebugView, GiMethod};
 use crate::hdr_image::HdrImage;
 use crate::radiance_hints::RadianceHintsVolume;
 use crate::scene::SceneSnapshot;
@@ -288,14 +288,18 @@ fn attach_camera(
             DepthPrepass,
             DeferredPrepass,
         ));
-        if headless.options.method == HeadlessMethod::RadianceHints {
+        if let Some(method) = headless.options.method.gi() {
             let o = &headless.options;
             commands.entity(entity).insert(DiffuseGi {
+                method,
                 debug_view: o.debug_view.unwrap_or(if o.indirect_only { GiDebugView::IndirectOnly } else { GiDebugView::None }),
                 half_resolution: o.half_resolution,
                 output: o.gi_output,
                 ..default()
             });
+            if method == GiMethod::Vpl {
+                commands.entity(entity).insert(o.vpl.clone());
+            }
         }
     }
 }
@@ -308,7 +312,7 @@ fn spawn_rh_volume(
     volumes: Query<(), With<RadianceHintsVolume>>,
     meshes: Query<(&bevy::camera::primitives::Aabb, &GlobalTransform), With<Mesh3d>>,
 ) {
-    if headless.options.method != HeadlessMethod::RadianceHints || *status != SceneStatus::Ready || !volumes.is_empty() {
+    if headless.options.method != HeadlessMethod::Gi(GiMethod::RadianceHints) || *status != SceneStatus::Ready || !volumes.is_empty() {
         return;
     }
     let Some((lo, hi)) = crate::scenes::mesh_bounds(meshes) else {

@@ -5,36 +5,38 @@ use std::path::PathBuf;
 use bevy::math::UVec2;
 use bevy::prelude::default;
 
-use crate::camera::GiOutput;
+use crate::camera::{GiMethod, GiOutput};
+use crate::vpl::VplSettings;
 use crate::radiance_hints::{DepthOcclusion, RadianceHintsVolume};
 use crate::scenes::StandardScene;
 use crate::sh::ShOrder;
 
 /// What produces the image.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
-#[serde(rename_all = "snake_case")]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum HeadlessMethod {
     /// Bevy's own direct lighting, no GI.
     None,
     /// The CPU path tracer ([`crate::reference`]).
     Reference,
-    /// Radiance Hints ([`crate::radiance_hints`]) over a volume fitted to the scene's bounds.
-    RadianceHints,
+    /// One of the plugin's GI methods, on the scene camera's [`DiffuseGi`](crate::camera::DiffuseGi)
+    /// (Radiance Hints gets a volume fitted to the scene's bounds).
+    Gi(GiMethod),
 }
 
 impl HeadlessMethod {
     /// Every accepted `--method` value.
-    pub const NAMES: &'static [&'static str] = &["none", "reference", "rh"];
+    pub const NAMES: &'static [&'static str] = &["none", "reference", "rh", "vpl"];
 
     pub fn parse(text: &str) -> Result<Self, String> {
         match text {
             "none" => Ok(Self::None),
             "reference" => Ok(Self::Reference),
-            "rh" | "radiance_hints" => Ok(Self::RadianceHints),
-            other => Err(format!(
-                "unknown method `{other}`: expected one of {}",
-                Self::NAMES.join(", ")
-            )),
+            "radiance_hints" => Ok(Self::Gi(GiMethod::RadianceHints)),
+            other => GiMethod::ALL
+                .into_iter()
+                .find(|m| m.name() == other)
+                .map(Self::Gi)
+                .ok_or_else(|| format!("unknown method `{other}`: expected one of {}", Self::NAMES.join(", "))),
         }
     }
 
@@ -42,8 +44,22 @@ impl HeadlessMethod {
         match self {
             Self::None => "none",
             Self::Reference => "reference",
-            Self::RadianceHints => "rh",
+            Self::Gi(method) => method.name(),
         }
+    }
+
+    /// The GI method, if this is one.
+    pub fn gi(self) -> Option<GiMethod> {
+        match self {
+            Self::Gi(method) => Some(method),
+            _ => None,
+        }
+    }
+}
+
+impl serde::Serialize for HeadlessMethod {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        serializer.serialize_str(self.name())
     }
 }
 
@@ -78,6 +94,9 @@ pub struct HeadlessOptions {
     /// on: the plugin clamps them with one warning, as it would for a game.
     #[serde(skip)]
     pub rh: RadianceHintsVolume,
+    /// VPL settings (`--preset` and the `--vpl-*`/`--ssbc-*` overrides), passed on unclamped like `rh`.
+    #[serde(skip)]
+    pub vpl: VplSettings,
     /// Fit the hint counts to the scene's proportions (cubic cells), unless `--rh-resolution` was given.
     pub rh_fit_cells: bool,
     /// GI cameras: reconstruct at half resolution.
@@ -111,6 +130,7 @@ impl Default for HeadlessOptions {
             burley_direct: false,
             pixel_centers: false,
             rh: RadianceHintsVolume::default(),
+            vpl: VplSettings::default(),
             rh_fit_cells: true,
             half_resolution: false,
             gi_output: GiOutput::Composite,
@@ -132,6 +152,9 @@ usage: headless [--scene cornell|PATH.glb] [--size WxH] [--frames N] [--out FILE
                 [--rh-albedo on|off] [--rh-depth-occlusion STEPS] [--rh-reconstruction N]
                 [--rh-visibility voxels|none] [--rh-secondary-transport voxel|paper] [--rh-refinement N]
                 [--dump-volume FILE.json]
+                [--vpl-paths N] [--vpl-bounces N] [--vpl-seed S] [--vpl-bound B] [--vpl-ism-resolution N]
+                [--vpl-ism-points N] [--vpl-ism-bias F] [--ssbc-steps N] [--ssbc-solid-angle SR]
+                [--ssbc-levels N] [--ssbc-blur on|off]
                 [--half-res] [--gi-output composite|irradiance-volume] [--debug-view VIEW]
                 [--animate-light]
 
@@ -140,7 +163,8 @@ usage: headless [--scene cornell|PATH.glb] [--size WxH] [--frames N] [--out FILE
   --frames         frames to render once the scene shows, before the image is kept (default 8)
   --out            the linear float EXR to write; FILE.json goes beside it (default out/render.exr)
   --method         none = Bevy's direct light; reference = CPU path tracer;
-                   rh = Radiance Hints over a volume fitted to the scene    (default none)
+                   rh = Radiance Hints over a volume fitted to the scene;
+                   vpl = VPLs with imperfect shadow maps and SSBC           (default none)
   --indirect-only  write only the indirect light the method adds
   --spp            path-tracer samples per pixel, 1..=1048576            (default 2048)
   --seed           path-tracer random seed                               (default 0)
@@ -148,12 +172,17 @@ usage: headless [--scene cornell|PATH.glb] [--size WxH] [--frames N] [--out FILE
   --ev100          exposure override in EV100                            (default: the scene's)
   --burley-direct  path tracer: shade direct light with Bevy's Burley lobe (for the direct check)
   --pixel-centers  path tracer: one ray through each pixel centre, no pixel filter (for the direct check)
-  --preset         Radiance Hints preset                                 (default medium)
+  --preset         the method's preset (RadianceHintsVolume or VplSettings) (default medium)
   --rh-*           override one RadianceHintsVolume field (see its docs); the plugin clamps
                    out-of-range values with a warning. --rh-depth-occlusion 0 turns §8 off
-  --half-res       reconstruct the bounced light at half resolution
+  --vpl-*          override one VplSettings field: paths, bounces, seed, bound (b in 1/m², 0 = automatic),
+                   ism-resolution (texels), ism-points, ism-bias (fraction of the distance)
+  --ssbc-*         override an SSBC field of VplSettings: steps (0 = clamped only), solid-angle (sr),
+                   levels, blur (on|off)
+  --half-res       compute the bounced light at half resolution
   --gi-output      composite (per pixel, default) or irradiance-volume (Bevy's light probe)
-  --debug-view     rh: indirect, irradiance, hint-grid, rsm-flux, rsm-normal or rsm-position
+  --debug-view     indirect, irradiance, hint-grid, rsm-flux, rsm-normal, rsm-position,
+                   vpl-clamped, vpl-compensation or vpl-positions
   --animate-light  move the GI lights on a 2 cm circle every frame (times the dynamic-light case)";
 
 fn value<'a>(flag: &str, args: &mut impl Iterator<Item = &'a str>) -> Result<&'a str, String> {
@@ -215,11 +244,28 @@ pub fn parse_args<'a>(args: impl IntoIterator<Item = &'a str>) -> Result<Headles
             "--burley-direct" => options.burley_direct = true,
             "--pixel-centers" => options.pixel_centers = true,
             "--preset" => {
-                options.rh = match value(flag, &mut args)? {
-                    "low" => RadianceHintsVolume::LOW,
-                    "medium" => RadianceHintsVolume::MEDIUM,
-                    "high" => RadianceHintsVolume::HIGH,
+                (options.rh, options.vpl) = match value(flag, &mut args)? {
+                    "low" => (RadianceHintsVolume::LOW, VplSettings::LOW),
+                    "medium" => (RadianceHintsVolume::MEDIUM, VplSettings::MEDIUM),
+                    "high" => (RadianceHintsVolume::HIGH, VplSettings::HIGH),
                     other => return Err(format!("--preset: unknown preset `{other}` (low, medium, high)")),
+                }
+            }
+            "--vpl-paths" => options.vpl.light_paths = any_number(flag, value(flag, &mut args)?)?,
+            "--vpl-bounces" => options.vpl.bounces = any_number(flag, value(flag, &mut args)?)?,
+            "--vpl-seed" => options.vpl.seed = any_number(flag, value(flag, &mut args)?)?,
+            "--vpl-bound" => options.vpl.geometry_bound = any_number(flag, value(flag, &mut args)?)?,
+            "--vpl-ism-resolution" => options.vpl.ism_resolution = any_number(flag, value(flag, &mut args)?)?,
+            "--vpl-ism-points" => options.vpl.ism_points = any_number(flag, value(flag, &mut args)?)?,
+            "--vpl-ism-bias" => options.vpl.ism_bias = any_number(flag, value(flag, &mut args)?)?,
+            "--ssbc-steps" => options.vpl.ssbc_steps = any_number(flag, value(flag, &mut args)?)?,
+            "--ssbc-solid-angle" => options.vpl.ssbc_solid_angle = any_number(flag, value(flag, &mut args)?)?,
+            "--ssbc-levels" => options.vpl.ssbc_levels = any_number(flag, value(flag, &mut args)?)?,
+            "--ssbc-blur" => {
+                options.vpl.ssbc_blur = match value(flag, &mut args)? {
+                    "on" => true,
+                    "off" => false,
+                    other => return Err(format!("--ssbc-blur: `{other}` is not on or off")),
                 }
             }
             "--rh-resolution" => {
@@ -288,9 +334,13 @@ pub fn parse_args<'a>(args: impl IntoIterator<Item = &'a str>) -> Result<Headles
                     "rsm-flux" => V::RsmFlux,
                     "rsm-normal" => V::RsmNormal,
                     "rsm-position" => V::RsmPosition,
+                    "vpl-clamped" => V::VplClampedOnly,
+                    "vpl-compensation" => V::VplCompensationOnly,
+                    "vpl-positions" => V::VplPositions,
                     other => {
                         return Err(format!(
-                            "--debug-view: `{other}` is not indirect, irradiance, hint-grid, rsm-flux, rsm-normal or rsm-position"
+                            "--debug-view: `{other}` is not indirect, irradiance, hint-grid, rsm-flux, rsm-normal, \
+                             rsm-position, vpl-clamped, vpl-compensation or vpl-positions"
                         ))
                     }
                 })
@@ -355,6 +405,17 @@ mod tests {
         assert!(err("--out x.png").contains(".exr"));
         assert!(err("--wat").contains("unknown flag"));
         assert!(err("--ev100 NaN").contains("--ev100"));
+    }
+
+    #[test]
+    fn methods_are_selected_through_gi_method() {
+        let o = parse_args("--method vpl --preset high --ssbc-steps 3 --vpl-bounces 4".split_whitespace()).unwrap();
+        assert_eq!(o.method, HeadlessMethod::Gi(GiMethod::Vpl));
+        assert_eq!((o.vpl.ssbc_steps, o.vpl.bounces, o.vpl.light_paths), (3, 4, VplSettings::HIGH.light_paths));
+        assert_eq!(parse_args(["--method", "rh"]).unwrap().method, HeadlessMethod::Gi(GiMethod::RadianceHints));
+        for name in HeadlessMethod::NAMES {
+            assert_eq!(HeadlessMethod::parse(name).unwrap().name(), *name);
+        }
     }
 
     #[test]

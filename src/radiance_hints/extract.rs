@@ -9,13 +9,11 @@ use bevy::light::{IrradianceVolume, LightProbe};
 use bevy::platform::collections::HashSet;
 use bevy::prelude::*;
 use bevy::render::render_resource::{Extent3d, TextureDimension, TextureFormat, TextureUsages};
-use bevy::render::sync_world::RenderEntity;
-
 use bevy::render::Extract;
 
 use super::settings::RadianceHintsVolume;
 use super::voxelize::{GeometryVoxels, voxelize};
-use crate::camera::{DiffuseGi, GiOutput};
+use crate::camera::{DiffuseGi, GiMethod, GiOutput};
 use crate::light::GiLight;
 use crate::rsm::RsmFocus;
 use crate::scene::SceneSnapshot;
@@ -166,9 +164,9 @@ pub(crate) fn manage_irradiance_exports(
     let Some(mut images) = images else {
         return;
     };
-    let wanted = cameras
-        .iter()
-        .any(|(camera, gi)| camera.is_active && gi.enabled && gi.output == GiOutput::IrradianceVolume);
+    let wanted = cameras.iter().any(|(camera, gi)| {
+        camera.is_active && gi.enabled && gi.method == GiMethod::RadianceHints && gi.output == GiOutput::IrradianceVolume
+    });
     for (entity, volume, export) in &volumes {
         let resolution = volume.sanitized().0.resolution;
         match (wanted, export) {
@@ -240,12 +238,25 @@ type VolumeQuery<'a> = (
     Option<&'a RhIrradianceExport>,
 );
 
+/// Extracts the volumes, but only while an active camera uses Radiance Hints (for its composite or its
+/// `IrradianceVolume` export): otherwise the method costs nothing, and its GPU state is dropped.
 pub(crate) fn extract_volumes(
     volumes: Extract<Query<VolumeQuery>>,
+    cameras: Extract<Query<(&Camera, &DiffuseGi)>>,
     mut extracted: ResMut<ExtractedRhVolumes>,
     mut focus: ResMut<RsmFocus>,
 ) {
     extracted.volumes.clear();
+    let used = cameras
+        .iter()
+        .any(|(camera, gi)| camera.is_active && gi.enabled && gi.method == GiMethod::RadianceHints);
+    if !used {
+        let next = RsmFocus::default();
+        if *focus != next {
+            *focus = next;
+        }
+        return;
+    }
     let mut bounds: Option<(Vec3, Vec3)> = None;
     for (entity, volume, transform, visibility, voxels, export) in &volumes {
         if visibility.is_some_and(|v| !v.get()) {
@@ -271,34 +282,8 @@ pub(crate) fn extract_volumes(
         });
     }
     extracted.volumes.sort_by_key(|v| v.entity);
-    let next = RsmFocus { bounds };
+    let next = RsmFocus { bounds, needed: !extracted.volumes.is_empty() };
     if *focus != next {
         *focus = next;
-    }
-}
-
-/// The camera's [`DiffuseGi`] in the render world (present only while the camera is active and GI is on).
-#[derive(Component, Clone, Debug, PartialEq)]
-pub struct ExtractedDiffuseGi(pub DiffuseGi);
-
-pub(crate) fn extract_cameras(
-    mut commands: Commands,
-    cameras: Extract<Query<(RenderEntity, &Camera, &DiffuseGi)>>,
-    without: Extract<Query<RenderEntity, (With<Camera>, Without<DiffuseGi>)>>,
-) {
-    for entity in &without {
-        if let Ok(mut entity) = commands.get_entity(entity) {
-            entity.remove::<ExtractedDiffuseGi>();
-        }
-    }
-    for (entity, camera, gi) in &cameras {
-        let Ok(mut entity) = commands.get_entity(entity) else {
-            continue;
-        };
-        if camera.is_active && gi.enabled {
-            entity.insert(ExtractedDiffuseGi(gi.clone()));
-        } else {
-            entity.remove::<ExtractedDiffuseGi>();
-        }
     }
 }

@@ -93,7 +93,11 @@ mod render;
 pub mod settings;
 pub mod voxelize;
 
-use bevy::core_pipeline::{Core3d, Core3dSystems};
+use bevy::core_pipeline::Core3d;
+use bevy::core_pipeline::schedule::camera_driver;
+use bevy::render::renderer::{RenderGraph, RenderGraphSystems};
+
+use crate::composite::GiViewSystems;
 use bevy::prelude::*;
 use bevy::render::render_resource::{SpecializedComputePipelines, SpecializedRenderPipelines};
 use bevy::render::renderer::{RenderAdapter, RenderDevice};
@@ -139,8 +143,9 @@ pub fn missing_capabilities(limits: &bevy::render::settings::WgpuLimits, compute
     need("indirect dispatch (DownlevelFlags::INDIRECT_EXECUTION)", 1, indirect as u64);
     need("max_storage_buffers_per_shader_stage", 6, limits.max_storage_buffers_per_shader_stage as u64);
     need("max_storage_textures_per_shader_stage", 1, limits.max_storage_textures_per_shader_stage as u64);
-    need("max_compute_workgroup_size_x", 64, limits.max_compute_workgroup_size_x as u64);
-    need("max_compute_invocations_per_workgroup", 64, limits.max_compute_invocations_per_workgroup as u64);
+    let threads = crate::WORKGROUP_SIZE as u64;
+    need("max_compute_workgroup_size_x", threads, limits.max_compute_workgroup_size_x as u64);
+    need("max_compute_invocations_per_workgroup", threads, limits.max_compute_invocations_per_workgroup as u64);
     need("max_color_attachments", 3, limits.max_color_attachments as u64);
     need("max_color_attachment_bytes_per_sample", 32, limits.max_color_attachment_bytes_per_sample as u64);
     need("max_texture_array_layers", 6, limits.max_texture_array_layers as u64);
@@ -228,7 +233,7 @@ impl Plugin for RadianceHintsPlugin {
             .init_resource::<SpecializedComputePipelines<prepare::RhPipelines>>()
             .init_resource::<SpecializedRenderPipelines<prepare::RhPipelines>>()
             .add_systems(RenderStartup, init_rh_pipelines)
-            .add_systems(ExtractSchedule, (extract::extract_volumes, extract::extract_cameras))
+            .add_systems(ExtractSchedule, extract::extract_volumes)
             .add_systems(
                 Render,
                 (
@@ -240,17 +245,23 @@ impl Plugin for RadianceHintsPlugin {
                 ),
             )
             .add_systems(
+                RenderGraph,
+                render::update_gi_volumes
+                    .in_set(RenderGraphSystems::Render)
+                    .after(crate::rsm::draw_rsm)
+                    .before(camera_driver),
+            )
+            .add_systems(
                 Core3d,
-                (render::update_gi_volumes, render::reconstruct_gi)
+                (render::update_depth_occluded_volumes, render::reconstruct_gi)
                     .chain()
-                    .after(Core3dSystems::Prepass)
-                    .before(Core3dSystems::MainPass),
+                    .in_set(GiViewSystems::Produce)
+                    .after(crate::composite::clear_gi_target),
             );
-        crate::composite::add_render_systems(render_app);
     }
 }
 
-pub(crate) fn init_rh_pipelines(world: &mut World) {
+fn init_rh_pipelines(world: &mut World) {
     let pipelines = prepare::RhPipelines::from_world(world);
     world.insert_resource(pipelines);
 }

@@ -14,16 +14,17 @@ use bevy::render::renderer::{RenderDevice, RenderQueue};
 use bevy::render::view::ViewUniform;
 use bevy::shader::ShaderDefVal;
 
-use super::extract::{ExtractedDiffuseGi, ExtractedRhVolumes};
+use super::extract::ExtractedRhVolumes;
+use crate::camera::GiMethod;
+use crate::composite::{ExtractedDiffuseGi, GI_TARGET_FORMAT};
 use super::settings::RadianceHintsVolume;
 use super::{RhShaders, sh_floats};
 use crate::rsm::RsmAtlas;
 use crate::sh::ShOrder;
 
-/// Workgroup size of every volume pass (threads per group, one hint each).
-pub const WORKGROUP_SIZE: u32 = 64;
-/// Format of the per-camera GI target of the reconstruction.
-pub const GI_TARGET_FORMAT: TextureFormat = TextureFormat::Rgba16Float;
+/// Workgroup size of every volume pass (threads per group, one hint each); the shaders get it as the
+/// `WORKGROUP_SIZE` shader def.
+pub const WORKGROUP_SIZE: u32 = crate::WORKGROUP_SIZE;
 
 /// The volume uniform (`RhVolume` in `shaders/radiance_hints/rh_types.wgsl`).
 #[derive(ShaderType, Clone, Copy, Debug, Default)]
@@ -73,6 +74,9 @@ pub struct RhPipelineKey {
 pub struct RhReconstructKey {
     pub sh_order: ShOrder,
     pub half_resolution: bool,
+    /// The [`GiDebugView::HintGrid`](crate::camera::GiDebugView::HintGrid) view: the nearest hint's
+    /// irradiance with cell borders instead of the reconstruction.
+    pub hint_grid: bool,
 }
 
 /// Layouts and shaders of every Radiance Hints pass.
@@ -171,25 +175,28 @@ impl FromWorld for RhPipelines {
     }
 }
 
-fn sh_def(order: ShOrder) -> ShaderDefVal {
-    ShaderDefVal::UInt("SH_COEFS".into(), order.coefficients() as u32)
+fn sh_defs(order: ShOrder) -> Vec<ShaderDefVal> {
+    let mut defs = crate::shared_shader_defs();
+    defs.push(ShaderDefVal::UInt("SH_COEFS".into(), order.coefficients() as u32));
+    defs
 }
 
 impl SpecializedComputePipeline for RhPipelines {
     type Key = RhPipelineKey;
 
     fn specialize(&self, key: Self::Key) -> ComputePipelineDescriptor {
-        let mut shader_defs = vec![sh_def(key.sh_order)];
+        let mut shader_defs = sh_defs(key.sh_order);
         let (label, layout, shader, entry) = match key.pass {
             RhPass::Inject { depth_occlusion, voxel_visibility } => {
-                // Groups 2 (occupancy) and 3 (view depth) are always in the layout so the indices stay put.
-                let layout = vec![
+                // Group 2 (occupancy) is always in the layout; group 3 (a camera's view and depth) only
+                // with §8, whose volumes update in a camera's pass.
+                let mut layout = vec![
                     self.inject_output_layout.clone(),
                     self.rsm_layout.clone(),
                     self.occupancy_layout.clone(),
-                    self.depth_layout.clone(),
                 ];
                 if depth_occlusion {
+                    layout.push(self.depth_layout.clone());
                     shader_defs.push("DEPTH_OCCLUSION".into());
                 }
                 if voxel_visibility {
@@ -236,10 +243,11 @@ impl SpecializedRenderPipeline for RhPipelines {
     type Key = RhReconstructKey;
 
     fn specialize(&self, key: Self::Key) -> RenderPipelineDescriptor {
-        let shader_defs = vec![
-            sh_def(key.sh_order),
-            ShaderDefVal::Int("GI_SCALE".into(), if key.half_resolution { 2 } else { 1 }),
-        ];
+        let mut shader_defs = sh_defs(key.sh_order);
+        shader_defs.push(ShaderDefVal::Int("GI_SCALE".into(), if key.half_resolution { 2 } else { 1 }));
+        if key.hint_grid {
+            shader_defs.push("HINT_GRID".into());
+        }
         RenderPipelineDescriptor {
             label: Some("diffuse_gi_rh_reconstruct_pipeline".into()),
             layout: vec![
@@ -344,8 +352,10 @@ pub struct RhVolumeBindGroups {
 pub struct RhVolumesGpu {
     pub volumes: Vec<RhVolumeGpu>,
     pub uniforms: DynamicUniformBuffer<RhVolumeUniform>,
-    /// The frame whose volume update has run (the first GI camera of a frame runs it).
+    /// The frame whose volume update has run.
     pub updated_frame: Option<u32>,
+    /// The frame whose §8 volumes have been updated (by the first GI camera's pass).
+    pub depth_updated_frame: Option<u32>,
     /// Reconstruction pipelines per key the cameras use this frame.
     pub reconstruct_pipelines: HashMap<RhReconstructKey, CachedRenderPipelineId>,
 }
@@ -587,9 +597,13 @@ pub(crate) fn prepare_rh_volumes(
     state.uniforms.write_buffer(&device, &queue);
 
     state.reconstruct_pipelines.clear();
-    for camera in &cameras {
+    for camera in cameras.iter().filter(|c| c.0.method == GiMethod::RadianceHints) {
         for order in state.volumes.iter().map(|v| v.settings.sh_order).collect::<Vec<_>>() {
-            let key = RhReconstructKey { sh_order: order, half_resolution: camera.0.half_resolution };
+            let key = RhReconstructKey {
+                sh_order: order,
+                half_resolution: camera.0.half_resolution,
+                hint_grid: camera.0.debug_view == crate::camera::GiDebugView::HintGrid,
+            };
             let id = specialized_render.specialize(&pipeline_cache, &pipelines, key);
             state.reconstruct_pipelines.insert(key, id);
         }

@@ -1,4 +1,4 @@
-//! The `Core3d` systems: the once-per-frame volume update and the per-camera reconstruction.
+//! The volume update (once per frame, before the cameras) and the per-camera reconstruction.
 
 use bevy::core_pipeline::prepass::ViewPrepassTextures;
 use bevy::diagnostic::FrameCount;
@@ -10,23 +10,20 @@ use bevy::render::renderer::{RenderContext, ViewQuery};
 use bevy::render::texture::GpuImage;
 use bevy::render::view::{ViewUniformOffset, ViewUniforms};
 
-use super::extract::ExtractedDiffuseGi;
 use super::prepare::{RhPipelines, RhReconstructKey, RhVolumesGpu};
-use crate::camera::GiOutput;
-use crate::composite::GiViewTarget;
-use crate::rsm::{RsmAtlas, RsmPipeline, draw_dirty_faces};
+use crate::camera::{GiDebugView, GiMethod, GiOutput};
+use crate::composite::{ExtractedDiffuseGi, GiViewTarget};
+use crate::rsm::RsmAtlas;
 
-/// Redraws the RSMs that changed and updates the volumes that need it, once per frame, in the first GI
-/// camera's `Core3d` run (after its prepass, whose depth the optional §8 occlusion reads).
-#[expect(clippy::too_many_arguments, reason = "the frame's whole volume update")]
+/// Updates the volumes that need it, once per frame and before any camera renders (the `RenderGraph`
+/// schedule): injection, extra bounces, blend, export. Volumes with the §8 depth occlusion, which reads a
+/// camera's depth, are updated in the first GI camera's `Core3d` run instead
+/// ([`update_depth_occluded_volumes`]).
 pub(crate) fn update_gi_volumes(
-    view: ViewQuery<(&ExtractedDiffuseGi, &ViewUniformOffset, &ViewPrepassTextures)>,
     mut state: ResMut<RhVolumesGpu>,
-    mut atlas: ResMut<RsmAtlas>,
-    rsm_pipeline: Res<RsmPipeline>,
+    atlas: Res<RsmAtlas>,
     pipelines: Res<RhPipelines>,
     pipeline_cache: Res<PipelineCache>,
-    view_uniforms: Res<ViewUniforms>,
     images: Res<RenderAssets<GpuImage>>,
     frame: Res<FrameCount>,
     mut ctx: RenderContext,
@@ -35,50 +32,72 @@ pub(crate) fn update_gi_volumes(
         return;
     }
     state.updated_frame = Some(frame.0);
-    let (_, view_offset, prepass) = view.into_inner();
+    update_volumes(&mut state, &atlas, &pipelines, &pipeline_cache, &images, None, &mut ctx);
+}
+
+/// The §8 volumes' update, in the first GI camera's `Core3d` run after its prepass (whose depth it reads).
+#[expect(clippy::too_many_arguments, reason = "the frame's whole volume update")]
+pub(crate) fn update_depth_occluded_volumes(
+    view: ViewQuery<(&ExtractedDiffuseGi, &ViewUniformOffset, &ViewPrepassTextures)>,
+    mut state: ResMut<RhVolumesGpu>,
+    atlas: Res<RsmAtlas>,
+    pipelines: Res<RhPipelines>,
+    pipeline_cache: Res<PipelineCache>,
+    view_uniforms: Res<ViewUniforms>,
+    images: Res<RenderAssets<GpuImage>>,
+    frame: Res<FrameCount>,
+    mut ctx: RenderContext,
+) {
+    let (gi, view_offset, prepass) = view.into_inner();
+    if gi.0.method != GiMethod::RadianceHints || state.depth_updated_frame == Some(frame.0) {
+        return;
+    }
+    if !state.volumes.iter().any(|v| v.settings.depth_occlusion.is_some()) {
+        return;
+    }
+    let (Some(uniforms), Some(depth)) = (view_uniforms.uniforms.binding(), prepass.depth_view()) else {
+        return;
+    };
+    state.depth_updated_frame = Some(frame.0);
+    let depth_group = ctx.render_device().create_bind_group(
+        "diffuse_gi_rh_depth_bind_group",
+        &pipeline_cache.get_bind_group_layout(&pipelines.depth_layout),
+        &BindGroupEntries::sequential((uniforms, depth)),
+    );
+    update_volumes(&mut state, &atlas, &pipelines, &pipeline_cache, &images, Some((&depth_group, view_offset.offset)), &mut ctx);
+}
+
+/// Runs the update of the volumes whose §8 setting matches `depth` (present: the §8 volumes with this
+/// camera's depth; absent: all others).
+fn update_volumes(
+    state: &mut RhVolumesGpu,
+    atlas: &RsmAtlas,
+    pipelines: &RhPipelines,
+    pipeline_cache: &PipelineCache,
+    images: &RenderAssets<GpuImage>,
+    depth: Option<(&BindGroup, u32)>,
+    ctx: &mut RenderContext,
+) {
+    let wants = |v: &super::prepare::RhVolumeGpu| v.settings.depth_occlusion.is_some() == depth.is_some();
+    if !state.volumes.iter().any(|v| wants(v) && (v.update_this_frame || v.export.is_some())) {
+        return;
+    }
+    let Some(lights) = atlas.lights.binding() else {
+        return;
+    };
     let device = ctx.render_device().clone();
     let diagnostics = ctx.diagnostic_recorder();
     let diagnostics = diagnostics.as_deref();
-
-    // Reflective shadow maps of the lights (or geometry) that changed.
-    if !atlas.dirty_faces.is_empty()
-        && let (Some(pipeline), Some(uniforms)) =
-            (pipeline_cache.get_render_pipeline(rsm_pipeline.pipeline), atlas.face_uniforms.binding())
-    {
-        let bind_group = device.create_bind_group(
-            "diffuse_gi_rsm_bind_group",
-            &pipeline_cache.get_bind_group_layout(&rsm_pipeline.layout),
-            &BindGroupEntries::single(uniforms),
-        );
-        let span = diagnostics.time_span(ctx.command_encoder(), "diffuse_gi/rsm");
-        draw_dirty_faces(&mut atlas, pipeline, &bind_group, ctx.command_encoder());
-        span.end(ctx.command_encoder());
-    }
-
-    if !state.volumes.iter().any(|v| v.update_this_frame || v.export.is_some()) {
-        return;
-    }
     let rsm_bind_group = device.create_bind_group(
         "diffuse_gi_rh_rsm_bind_group",
         &pipeline_cache.get_bind_group_layout(&pipelines.rsm_layout),
-        &BindGroupEntries::sequential((
-            &atlas.position_view,
-            &atlas.normal_view,
-            &atlas.flux_view,
-            atlas.lights.binding().expect("written in prepare_rsm"),
-        )),
+        &BindGroupEntries::sequential((&atlas.position_view, &atlas.normal_view, &atlas.flux_view, lights)),
     );
-    let depth_bind_group = match (view_uniforms.uniforms.binding(), prepass.depth_view()) {
-        (Some(uniforms), Some(depth)) => Some(device.create_bind_group(
-            "diffuse_gi_rh_depth_bind_group",
-            &pipeline_cache.get_bind_group_layout(&pipelines.depth_layout),
-            &BindGroupEntries::sequential((uniforms, depth)),
-        )),
-        _ => None,
-    };
 
-    let state = &mut *state;
     for v in &mut state.volumes {
+        if !wants(v) {
+            continue;
+        }
         let (Some(groups), Some(ids)) = (v.bind_groups.as_ref(), v.pipelines) else {
             continue;
         };
@@ -106,11 +125,9 @@ pub(crate) fn update_gi_volumes(
                 pass.set_bind_group(0, &groups.inject_output, &[base]);
                 pass.set_bind_group(1, &rsm_bind_group, &[]);
                 pass.set_bind_group(2, &groups.occupancy, &[]);
-                // The layout always has group 3; without §8 any view's depth will do (the shader ignores it).
-                let Some(depth) = &depth_bind_group else {
-                    continue;
-                };
-                pass.set_bind_group(3, depth, &[view_offset.offset]);
+                if let Some((group, offset)) = depth {
+                    pass.set_bind_group(3, group, &[offset]);
+                }
                 pass.dispatch_workgroups(v.workgroups, 1, 1);
                 span.end(&mut pass);
             }
@@ -183,7 +200,7 @@ pub(crate) fn reconstruct_gi(
     mut ctx: RenderContext,
 ) {
     let (gi, view_offset, prepass, target) = view.into_inner();
-    if gi.0.output != GiOutput::Composite {
+    if gi.0.method != GiMethod::RadianceHints || gi.0.output != GiOutput::Composite {
         return;
     }
     let (Some(uniforms), Some(depth), Some(gbuffer)) =
@@ -207,7 +224,7 @@ pub(crate) fn reconstruct_gi(
                 depth_slice: None,
                 resolve_target: None,
                 ops: Operations {
-                    load: LoadOp::Clear(default()),
+                    load: LoadOp::Load,
                     store: StoreOp::Store,
                 },
             })],
@@ -220,6 +237,7 @@ pub(crate) fn reconstruct_gi(
             let key = RhReconstructKey {
                 sh_order: v.settings.sh_order,
                 half_resolution: gi.0.half_resolution,
+                hint_grid: gi.0.debug_view == GiDebugView::HintGrid,
             };
             let (Some(pipeline), Some(groups)) = (
                 state.reconstruct_pipelines.get(&key).and_then(|id| pipeline_cache.get_render_pipeline(*id)),

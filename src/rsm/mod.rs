@@ -36,7 +36,9 @@ use bevy::mesh::VertexBufferLayout;
 use bevy::prelude::*;
 use bevy::render::render_resource::binding_types::uniform_buffer;
 use bevy::render::render_resource::*;
-use bevy::render::renderer::{RenderDevice, RenderQueue};
+use bevy::core_pipeline::schedule::camera_driver;
+use bevy::render::diagnostic::RecordDiagnostics;
+use bevy::render::renderer::{RenderContext, RenderDevice, RenderGraph, RenderGraphSystems, RenderQueue};
 use bevy::render::{ExtractSchedule, Render, RenderApp, RenderStartup, RenderSystems};
 use bevy::shader::Shader;
 
@@ -58,14 +60,16 @@ pub const KIND_DIRECTIONAL: u32 = 0;
 pub const KIND_SPOT: u32 = 1;
 pub const KIND_POINT: u32 = 2;
 
-/// The region the RSMs of directional lights are fitted to: the union of every GI volume's bounds.
-/// Written by the GI methods during extraction.
+/// What the methods that read RSMs ask of them, written during extraction: whether any camera's method
+/// needs them this frame (no consumer: no face is drawn), and the region the RSMs of directional lights
+/// are fitted to (the union of every GI volume's bounds).
 #[derive(Resource, Default, Clone, Copy, Debug, PartialEq)]
 pub struct RsmFocus {
     pub bounds: Option<(Vec3, Vec3)>,
+    pub needed: bool,
 }
 
-/// Uniform of one RSM face (see `shaders/rsm/rsm.wgsl`).
+/// Uniform of one RSM face (`RsmFace` in `shaders/rsm/rsm_types.wgsl`).
 #[derive(ShaderType, Clone, Copy, Debug, Default, PartialEq)]
 pub struct RsmFaceUniform {
     pub clip_from_world: Mat4,
@@ -74,9 +78,11 @@ pub struct RsmFaceUniform {
     pub spot_direction: Vec4,
     pub color: Vec4,
     pub params: Vec4,
+    /// [`KIND_DIRECTIONAL`], [`KIND_SPOT`] or [`KIND_POINT`].
+    pub kind: u32,
 }
 
-/// One GI light as the injection pass reads it.
+/// One GI light as the passes that read the atlas see it (`GiLight` in `shaders/rsm/rsm_types.wgsl`).
 #[derive(ShaderType, Clone, Copy, Debug, Default, PartialEq)]
 pub struct GpuGiLight {
     /// Clip space of face 0 (used to centre the sampled disk of directional lights).
@@ -142,11 +148,12 @@ pub fn light_faces(
             let e_max = max_component(illuminance);
             let face = RsmFaceUniform {
                 clip_from_world: projection * view,
-                light_position: Vec4::new(0.0, 0.0, 0.0, KIND_DIRECTIONAL as f32),
+                light_position: Vec4::ZERO,
                 axis: dir.extend(0.0),
                 spot_direction: dir.extend(0.0),
                 color: (illuminance / e_max).extend(1.0),
                 params: Vec4::new(0.0, 0.0, 0.0, texel_area),
+                kind: KIND_DIRECTIONAL,
             };
             RsmLightFaces {
                 faces: vec![face],
@@ -199,6 +206,7 @@ fn local_light_params(
         spot_direction: spot_direction.extend(0.0),
         color: color.extend(1.0),
         params: Vec4::new(spot_scale, spot_offset, inverse_range_squared, 0.0),
+        kind: 0,
     }
 }
 
@@ -232,7 +240,7 @@ fn perspective_face(
     let omega = (2.0 * t / res).powi(2);
     let mut face = base;
     face.clip_from_world = projection * view;
-    face.light_position.w = kind as f32;
+    face.kind = kind;
     face.axis = axis.extend(0.0);
     face.params.w = omega;
     (face, omega)
@@ -383,22 +391,24 @@ pub struct RsmPlugin;
 
 /// The RSM shader, kept alive by this resource.
 #[derive(Resource, Clone)]
-pub struct RsmShader(pub Handle<Shader>);
+pub struct RsmShader(pub Handle<Shader>, pub Handle<Shader>);
 
 impl Plugin for RsmPlugin {
     fn build(&self, app: &mut App) {
         let shader = crate::add_shader(app, "rsm/rsm.wgsl", include_str!("../../shaders/rsm/rsm.wgsl"));
+        let types = crate::add_shader(app, "rsm/rsm_types.wgsl", include_str!("../../shaders/rsm/rsm_types.wgsl"));
         let Some(render_app) = app.get_sub_app_mut(RenderApp) else {
             return;
         };
         render_app
-            .insert_resource(RsmShader(shader))
+            .insert_resource(RsmShader(shader, types))
             .init_resource::<ExtractedGiGeometry>()
             .init_resource::<ExtractedGiLights>()
             .init_resource::<RsmFocus>()
             .add_systems(RenderStartup, (init_rsm_pipeline, init_rsm_atlas))
             .add_systems(ExtractSchedule, (extract::extract_gi_geometry, extract::extract_gi_lights))
-            .add_systems(Render, prepare_rsm.in_set(RenderSystems::PrepareResources));
+            .add_systems(Render, prepare_rsm.in_set(RenderSystems::PrepareResources))
+            .add_systems(RenderGraph, draw_rsm.in_set(RenderGraphSystems::Render).before(camera_driver));
     }
 }
 
@@ -417,6 +427,7 @@ fn init_rsm_pipeline(mut commands: Commands, shader: Res<RsmShader>, pipeline_ca
         vertex: VertexState {
             shader: shader.0.clone(),
             entry_point: Some("vertex".into()),
+            shader_defs: crate::shared_shader_defs(),
             buffers: vec![VertexBufferLayout {
                 array_stride: std::mem::size_of::<RsmVertex>() as u64,
                 step_mode: VertexStepMode::Vertex,
@@ -426,13 +437,12 @@ fn init_rsm_pipeline(mut commands: Commands, shader: Res<RsmShader>, pipeline_ca
                     VertexAttribute { format: VertexFormat::Float32x3, offset: 24, shader_location: 2 },
                 ],
             }],
-            ..default()
         },
         fragment: Some(FragmentState {
             shader: shader.0.clone(),
             entry_point: Some("fragment".into()),
+            shader_defs: crate::shared_shader_defs(),
             targets: vec![target(POSITION_FORMAT), target(NORMAL_FORMAT), target(FLUX_FORMAT)],
-            ..default()
         }),
         primitive: PrimitiveState {
             // Two-sided: a wall lights a room whichever way its triangles wind.
@@ -563,6 +573,36 @@ pub(crate) fn prepare_rsm(
     }
     *atlas.lights.get_mut() = gpu_lights;
     atlas.lights.write_buffer(&device, &queue);
+}
+
+/// Draws the RSM faces that changed, once per frame and before any camera renders (the `RenderGraph`
+/// schedule), and only while a camera's method reads RSMs ([`RsmFocus::needed`]); until then the changed
+/// faces stay pending.
+pub(crate) fn draw_rsm(
+    mut atlas: ResMut<RsmAtlas>,
+    rsm_pipeline: Res<RsmPipeline>,
+    pipeline_cache: Res<PipelineCache>,
+    focus: Res<RsmFocus>,
+    mut ctx: RenderContext,
+) {
+    if !focus.needed || atlas.dirty_faces.is_empty() {
+        return;
+    }
+    let (Some(pipeline), Some(uniforms)) =
+        (pipeline_cache.get_render_pipeline(rsm_pipeline.pipeline), atlas.face_uniforms.binding())
+    else {
+        return;
+    };
+    let bind_group = ctx.render_device().create_bind_group(
+        "diffuse_gi_rsm_bind_group",
+        &pipeline_cache.get_bind_group_layout(&rsm_pipeline.layout),
+        &BindGroupEntries::single(uniforms),
+    );
+    let diagnostics = ctx.diagnostic_recorder();
+    let diagnostics = diagnostics.as_deref();
+    let span = diagnostics.time_span(ctx.command_encoder(), "diffuse_gi/rsm");
+    draw_dirty_faces(&mut atlas, pipeline, &bind_group, ctx.command_encoder());
+    span.end(ctx.command_encoder());
 }
 
 /// Renders the faces `prepare_rsm` marked dirty and records what they now show. Returns whether

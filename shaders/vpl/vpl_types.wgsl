@@ -1,0 +1,66 @@
+// Shared definitions of the VPL passes. The Rust side is `GpuVpl` and `VplUniform` in src/vpl/render.rs
+// (`ShaderType`); sizes come in as shader defs.
+#define_import_path bevy_diffuse_gi::vpl_types
+
+const PI: f32 = 3.141592653589793;
+
+// One virtual point light: a diffuse emitter of reflected flux `flux` (lumens) at `position`, facing
+// `normal`. Its intensity towards ω is flux/π · max(0, n·ω).
+struct Vpl {
+    position: vec4<f32>,
+    normal: vec4<f32>,
+    flux: vec4<f32>,
+}
+
+struct VplUniform {
+    // VPLs in the buffer.
+    vpl_count: u32,
+    // Side of each imperfect shadow map (level 0), texels; a multiple of 4.
+    ism_resolution: u32,
+    // u32 words per VPL's shadow map: levels 0, 1 and 2 of its pull-push pyramid.
+    ism_stride: u32,
+    // Scene points each VPL splats.
+    points_per_ism: u32,
+    // Points in the point set.
+    point_count: u32,
+    // b of G_b = min(G, b), 1/m².
+    geometry_bound: f32,
+    // Depth tolerance of the shadow-map test, fraction of the distance.
+    ism_bias: f32,
+    // Multiplies the gathered light.
+    intensity: f32,
+}
+
+// A continuous orthonormal basis (t, b, n) around unit n (Duff et al. 2017); the same in every pass.
+fn basis(n: vec3<f32>) -> mat3x3<f32> {
+    let s = select(-1.0, 1.0, n.z >= 0.0);
+    let a = -1.0 / (s + n.z);
+    let b = n.x * n.y * a;
+    return mat3x3(vec3(1.0 + s * n.x * n.x * a, s * b, -s * n.x), vec3(b, s + n.y * n.y * a, -n.y), n);
+}
+
+// Unit direction `d` in the frame of normal `n` (z along n).
+fn to_local(n: vec3<f32>, d: vec3<f32>) -> vec3<f32> {
+    return d * basis(n);
+}
+
+// Continuous paraboloid coordinates in [0, resolution)² of a local direction with z > 0
+// (Brabec et al. 2002: uv = xy / (1 + z) over the unit disk).
+fn paraboloid_coords(local: vec3<f32>, resolution: u32) -> vec2<f32> {
+    let uv = local.xy / (1.0 + max(local.z, 0.0));
+    return (uv * 0.5 + 0.5) * f32(resolution);
+}
+
+// Word index of texel `t` of level `level` (0, 1, 2) of VPL `vpl`'s shadow map.
+fn ism_index(u: VplUniform, vpl: u32, level: u32, t: vec2<u32>) -> u32 {
+    let r0 = u.ism_resolution;
+    var offset = 0u;
+    if level >= 1u {
+        offset += r0 * r0;
+    }
+    if level >= 2u {
+        offset += (r0 / 2u) * (r0 / 2u);
+    }
+    let r = r0 >> level;
+    return vpl * u.ism_stride + offset + t.y * r + t.x;
+}

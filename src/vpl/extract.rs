@@ -1,0 +1,198 @@
+//! Main world: settings validation and the VPL walks (only when their inputs change); and extraction.
+
+use std::sync::Arc;
+
+use bevy::platform::collections::HashSet;
+use bevy::prelude::*;
+use bevy::render::Extract;
+
+use super::VplSettings;
+use super::generate::{IsmPoint, Vpl, WalkSettings, automatic_bound, generate_vpls, ism_points, surface_area};
+use crate::camera::{DiffuseGi, GiDebugView, GiMethod};
+use crate::ssbc::SsbcRequest;
+use crate::light::GiLight;
+use crate::scene::SceneSnapshot;
+
+/// Scene points per VPL's splat run: the point set holds this many runs, so that neighbouring VPLs
+/// splat different points (Ritschel et al. 2008 give every ISM its own subset).
+pub const POINT_RUNS: u32 = 16;
+/// The largest point set, whatever `ism_points` asks (16 MiB of `vec4`s).
+pub const MAX_POINTS: u32 = 1 << 20;
+
+/// The VPLs and the shadow-map point set, shared by every VPL camera; rebuilt only when the lights, the
+/// geometry or the generation settings change. Empty while no camera uses the method.
+#[derive(Resource, Default, Clone, Debug)]
+pub struct VplSet {
+    /// Bumped whenever `vpls` change (the shadow maps are rebuilt then).
+    pub generation: u64,
+    pub vpls: Arc<Vec<Vpl>>,
+    /// Bumped whenever `points` change.
+    pub points_generation: u64,
+    pub points: Arc<Vec<IsmPoint>>,
+    /// The settings the set was generated with (sanitised; the first VPL camera's).
+    pub settings: VplSettings,
+    /// The automatic `b` for this set ([`automatic_bound`]), 1/m².
+    pub automatic_bound: f32,
+    key: Option<VplKey>,
+    points_key: Option<(u64, u32)>,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+struct VplKey {
+    geometry: u64,
+    lights: u64,
+    gi_lights: Vec<Entity>,
+    walk: WalkSettings,
+}
+
+/// Warns once per camera and field about clamped settings.
+pub(crate) fn validate_vpl_settings(
+    cameras: Query<(Entity, &VplSettings), Changed<VplSettings>>,
+    mut warned: Local<HashSet<(Entity, &'static str)>>,
+    mut warnings: ResMut<crate::DiffuseGiWarnings>,
+) {
+    for (entity, settings) in &cameras {
+        let (clean, fields) = settings.sanitized();
+        for field in fields {
+            if warned.insert((entity, field)) {
+                crate::gi_warning(
+                    &mut warnings,
+                    format!("bevy_diffuse_gi: VplSettings on {entity}: invalid `{field}`, using {}", field_value(&clean, field)),
+                );
+            }
+        }
+    }
+}
+
+fn field_value(s: &VplSettings, field: &str) -> String {
+    match field {
+        "light_paths" => s.light_paths.to_string(),
+        "bounces" => s.bounces.to_string(),
+        "geometry_bound" => s.geometry_bound.to_string(),
+        "ism_resolution" => s.ism_resolution.to_string(),
+        "ism_points" => s.ism_points.to_string(),
+        "ism_bias" => s.ism_bias.to_string(),
+        "ssbc_steps" => s.ssbc_steps.to_string(),
+        "ssbc_solid_angle" => s.ssbc_solid_angle.to_string(),
+        "ssbc_discontinuity_solid_angle" => s.ssbc_discontinuity_solid_angle.to_string(),
+        "ssbc_levels" => s.ssbc_levels.to_string(),
+        _ => s.intensity.to_string(),
+    }
+}
+
+/// The settings of the first active camera that uses the VPL method, if any.
+pub(crate) fn first_vpl_camera<'a>(
+    cameras: impl Iterator<Item = (Entity, &'a Camera, &'a DiffuseGi, Option<&'a VplSettings>)>,
+) -> Option<VplSettings> {
+    cameras
+        .filter(|(_, camera, gi, _)| camera.is_active && gi.enabled && gi.method == GiMethod::Vpl)
+        .min_by_key(|(entity, ..)| *entity)
+        .map(|(.., settings)| settings.cloned().unwrap_or_default().sanitized().0)
+}
+
+/// Regenerates the VPLs (and the point set) when the lights, the geometry or the settings changed, and
+/// only while a camera uses the method.
+pub(crate) fn update_vpls(
+    mut commands: Commands,
+    mut set: ResMut<VplSet>,
+    snapshot: Option<Res<SceneSnapshot>>,
+    cameras: Query<(Entity, &Camera, &DiffuseGi, Option<&VplSettings>)>,
+    gi_lights: Query<Entity, With<GiLight>>,
+) {
+    let Some(settings) = first_vpl_camera(cameras.iter()) else {
+        if set.key.is_some() {
+            *set = VplSet { generation: set.generation + 1, points_generation: set.points_generation + 1, ..default() };
+        }
+        return;
+    };
+    let Some(snapshot) = snapshot else {
+        if !gi_lights.is_empty() {
+            commands.init_resource::<SceneSnapshot>();
+        }
+        return;
+    };
+    let mut lights: Vec<Entity> = gi_lights.iter().collect();
+    lights.sort();
+    let walk = WalkSettings { paths: settings.light_paths, bounces: settings.bounces, seed: settings.seed };
+    let key = VplKey {
+        geometry: snapshot.geometry_generation,
+        lights: snapshot.light_generation,
+        gi_lights: lights,
+        walk,
+    };
+    if set.key.as_ref() != Some(&key) {
+        let sources: Vec<_> = snapshot
+            .lights
+            .iter()
+            .filter(|l| key.gi_lights.binary_search(&l.entity).is_ok())
+            .map(|l| l.light)
+            .collect();
+        let vpls = generate_vpls(&snapshot, &sources, walk);
+        set.automatic_bound = automatic_bound(vpls.len(), surface_area(&snapshot));
+        set.vpls = Arc::new(vpls);
+        set.generation += 1;
+        set.key = Some(key);
+    }
+    let count = (settings.ism_points.saturating_mul(POINT_RUNS)).min(MAX_POINTS);
+    let points_key = (snapshot.geometry_generation, count);
+    if set.points_key != Some(points_key) {
+        set.points = Arc::new(ism_points(&snapshot, count, settings.seed));
+        set.points_generation += 1;
+        set.points_key = Some(points_key);
+        // New points: the shadow maps must be splatted again.
+        set.generation += 1;
+    }
+    if set.settings != settings {
+        set.settings = settings;
+        set.generation += 1;
+    }
+}
+
+/// The VPL set in the render world (the `Arc`s are shared, not copied).
+#[derive(Resource, Default, Clone, Debug)]
+pub struct ExtractedVplSet(pub VplSet);
+
+pub(crate) fn extract_vpl_set(set: Extract<Res<VplSet>>, mut extracted: ResMut<ExtractedVplSet>) {
+    if extracted.0.generation != set.generation || extracted.0.points_generation != set.points_generation {
+        extracted.0 = set.clone();
+    }
+}
+
+/// The camera's [`VplSettings`] in the render world (sanitised), for VPL cameras.
+#[derive(Component, Clone, Debug, PartialEq)]
+pub struct ExtractedVplSettings(pub VplSettings);
+
+/// Copies each VPL camera's settings into the render world, and asks the frame's SSBC pass for the
+/// compensation (unless the settings or the debug view want the clamped light alone).
+pub(crate) fn extract_vpl_cameras(
+    mut commands: Commands,
+    cameras: Extract<Query<(bevy::render::sync_world::RenderEntity, &DiffuseGi, Option<&VplSettings>)>>,
+    set: Extract<Res<VplSet>>,
+) {
+    for (entity, gi, settings) in &cameras {
+        let Ok(mut entity) = commands.get_entity(entity) else {
+            continue;
+        };
+        if gi.method != GiMethod::Vpl {
+            entity.remove::<(ExtractedVplSettings, SsbcRequest)>();
+            continue;
+        }
+        let s = settings.cloned().unwrap_or_default().sanitized().0;
+        let wanted = s.ssbc_steps > 0 && gi.debug_view != GiDebugView::VplClampedOnly && gi.debug_view != GiDebugView::VplPositions;
+        if wanted {
+            entity.insert(SsbcRequest {
+                steps: s.ssbc_steps,
+                bound: super::render::effective_bound(s.geometry_bound, set.automatic_bound),
+                solid_angle: s.ssbc_solid_angle,
+                discontinuity_solid_angle: s.ssbc_discontinuity_solid_angle,
+                levels: s.ssbc_levels,
+                blur: s.ssbc_blur,
+                intensity: s.intensity,
+                replace: gi.debug_view == GiDebugView::VplCompensationOnly,
+            });
+        } else {
+            entity.remove::<SsbcRequest>();
+        }
+        entity.insert(ExtractedVplSettings(s));
+    }
+}

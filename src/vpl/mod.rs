@@ -1,0 +1,313 @@
+//! Instant radiosity with virtual point lights (VPLs; Keller 1997), imperfect shadow maps for their
+//! visibility (Ritschel et al. 2008), the clamped geometry term and screen-space bias compensation
+//! (Novák, Engelhardt, Dachsbacher, "Screen-Space Bias Compensation for Interactive High-Quality Global
+//! Illumination with Virtual Point Lights", I3D 2011).
+//!
+//! ```no_run
+//! # use bevy::prelude::*;
+//! # use bevy_diffuse_gi::prelude::*;
+//! # fn setup(mut commands: Commands) {
+//! commands.spawn((Camera3d::default(), DiffuseGi { method: GiMethod::Vpl, ..default() }, VplSettings::MEDIUM));
+//! commands.spawn((SpotLight { shadow_maps_enabled: true, ..default() }, GiLight::default()));
+//! # }
+//! ```
+//!
+//! # Algorithm
+//! The indirect light is Eq. 3 of the paper, `L = L_e + Σ_i T_rⁱ (T L_e + T_b L̂)`, truncated after
+//! `ssbc_steps` terms:
+//! 1. **VPLs** ([`generate`], main world, CPU): `light_paths` paths from the GI lights, split by power
+//!    and stratified (Owen-scrambled Sobol, a fixed seed, so a still scene gets the same VPLs every
+//!    frame), traced through the scene snapshot's BVH. Each path leaves a VPL at each of its first
+//!    `bounces` surface hits, with the reflected flux `ρ·Φ` (the first one is what the light's RSM texel
+//!    holds, `ρ·Φ_T`); the walk continues in a cosine-distributed direction. The paper, too, computes the
+//!    random walks on the CPU (§5). Redone only when a light, the geometry or the settings change.
+//! 2. **Imperfect shadow maps** (`shaders/vpl/ism.wgsl`, once per frame before the cameras, only when the
+//!    VPLs changed): a fixed set of surface points ([`generate::ism_points`], uniform by area), of which
+//!    each VPL splats its own run of `ism_points` into a small paraboloid depth map over its hemisphere
+//!    (nearest depth by atomic max of the inverse distance); pull-push then fills the holes from up to two
+//!    coarser levels (Ritschel §3.2).
+//! 3. **Clamped gather** (`gather.wgsl`, per view): at each pixel `E_b = Σ Φ/π · G_b · V` with
+//!    `G_b = min(G, b)` (§3.1) and `V` the imperfect shadow map test, written into the frame's target.
+//! 4. **Screen-space bias compensation** ([`crate::ssbc`], per view, after the opaque pass): the residual
+//!    operator `T_r` with `G_r = max(G − b, 0)` (§3.2) applied `ssbc_steps` times to the outgoing light of
+//!    the visible surfaces (Bevy's direct light plus the clamped indirect light, then each step's result),
+//!    over a mip chain of the G-buffer, inside the bounding radius `r = 1/√b` (§4.1–4.3).
+//!
+//! # Where this departs from the paper, and why
+//! * The bound `b` defaults to the VPL density `N / A` over the scene's surfaces
+//!   ([`generate::automatic_bound`]), so the bounding radius is the mean VPL spacing at any scene scale;
+//!   a fixed number in 1/m² would be right for one room size only.
+//! * Bevy's rasteriser draws the direct light, and SSBC reads it from the view's main texture after the
+//!   opaque pass (with the emission and ambient light Bevy adds there).
+//!
+//! # Cost (skipping what a scene does not need)
+//! No camera with [`GiMethod::Vpl`](crate::camera::GiMethod::Vpl): nothing runs, not even the walks.
+//! A still scene reuses its VPLs and shadow maps; per frame only the gather (`O(pixels × VPLs)`) and SSBC
+//! (`O(pixels × samples × steps)`) run per view.
+//!
+//! # Known issues
+//! * Screen space sees only what the camera sees: SSBC cannot return the energy clamped near surfaces
+//!   that are off screen or hidden (§4.3).
+//! * Imperfect shadow maps are coarse: thin occluders (below about 1/`ism_resolution` of the distance) are
+//!   missed, so light leaks through thin walls near a VPL.
+//! * Emissive surfaces emit no VPLs (only `GiLight`s do).
+
+pub mod generate;
+pub(crate) mod extract;
+mod render;
+
+use bevy::prelude::*;
+use bevy::render::renderer::{RenderAdapter, RenderDevice};
+use bevy::render::RenderApp;
+
+pub use generate::Vpl;
+
+/// The settings of the VPL method, on a camera with [`DiffuseGi`](crate::camera::DiffuseGi)
+/// `{ method: GiMethod::Vpl, .. }`. A camera without it uses [`VplSettings::default`] (the medium preset).
+///
+/// The VPLs and their shadow maps are shared by every camera: the first VPL camera's generation fields
+/// (`light_paths`, `bounces`, `seed`, `ism_*`) decide them; the gather and SSBC fields are per camera.
+/// Invalid values are clamped to their range with one warning.
+#[derive(Component, Reflect, Clone, Debug, PartialEq)]
+#[reflect(Component, Default, Clone)]
+#[doc(alias = "InstantRadiosity")]
+#[doc(alias = "SSBC")]
+pub struct VplSettings {
+    /// Light paths traced from the GI lights (split between them by power). Each leaves up to
+    /// [`bounces`](Self::bounces) VPLs. Range 1–16384; medium 256. Cost: the gather is linear in the VPL
+    /// count per pixel, and the shadow maps in VPLs × `ism_points`.
+    pub light_paths: u32,
+    /// Most surface hits per light path that leave a VPL: 1 is one-bounce indirect light, 2 adds light
+    /// that bounced twice, and so on. Paths end earlier by Russian roulette on the albedo, so a room of
+    /// albedo ρ gets about `paths / (1 − ρ)` VPLs whatever the cap; a low cap loses the light of the
+    /// longer paths (the tail `ρ^bounces`). Range 1–32; default 16. Cost: at most paths × bounces VPLs.
+    pub bounces: u32,
+    /// Seed of the quasi-random light paths. Any value; default 0. Changing it gives another, equally good
+    /// VPL set (an animation of it flickers, a fixed one does not).
+    pub seed: u32,
+    /// Bound `b` of the clamped geometry term `G_b = min(G, b)` (§3.1), in 1/m². `0` (the default) picks it
+    /// from the VPL density: `b = N_VPL / A_surfaces`, so that the bounding radius `r = 1/√b` is the mean
+    /// VPL spacing. Range 0 or 10⁻⁶–10⁶. Larger values clamp less (brighter splotches near VPLs, less for
+    /// SSBC to return); smaller values clamp more and make SSBC search a larger radius (slower).
+    pub geometry_bound: f32,
+    /// Side of each VPL's imperfect shadow map (paraboloid over its hemisphere), in texels. Range 8–128;
+    /// medium 32. Cost: memory VPLs × side² × 5.25 bytes; finer maps need more `ism_points` to fill.
+    pub ism_resolution: u32,
+    /// Scene points each VPL splats into its shadow map. Range 64–65536; medium 4096. Cost: linear, once
+    /// per VPL change. Too few leave holes pull-push cannot fill (light through walls).
+    pub ism_points: u32,
+    /// Depth tolerance of the shadow map test, as a fraction of the distance to the VPL, on top of a
+    /// slope-scaled part that grows with the receiver's tilt (see `gather.wgsl`). Range 0–1; default
+    /// 0.05. Smaller values shadow more surfaces wrongly (self-shadowing acne); larger ones let
+    /// light through thin occluders.
+    pub ism_bias: f32,
+    /// Screen-space bias compensation steps (terms of Eq. 3 after the first): 0 is the clamped solution
+    /// alone. Range 0–3; medium 1. Cost: each step is one hierarchical gather per pixel.
+    pub ssbc_steps: u32,
+    /// Projected solid angle above which SSBC refines a G-buffer sample into its four children (§4.2),
+    /// in steradians. Range 0.001–1; default 0.08 (the paper's). Smaller is more accurate and slower.
+    pub ssbc_solid_angle: f32,
+    /// Projected solid angle above which a sample spanning a depth or normal discontinuity is refined
+    /// (§4.2), in steradians. Range 0.001–1; default 0.04 (the paper's).
+    pub ssbc_discontinuity_solid_angle: f32,
+    /// Levels of the hierarchical G-buffer SSBC traverses. Range 1–8; default 6 (the paper's).
+    pub ssbc_levels: u32,
+    /// Blur the compensation with a 5×5 depth- and normal-aware filter before adding it (§5, optional in
+    /// the paper). Default `true`. Cost: one small pass.
+    pub ssbc_blur: bool,
+    /// Multiplies the indirect light. Range 0–1000; default 1.
+    pub intensity: f32,
+}
+
+impl VplSettings {
+    /// 64 paths (about 200 VPLs in a room of albedo 0.7), 16² shadow maps of 2048 points, one SSBC step.
+    pub const LOW: Self = Self {
+        light_paths: 64,
+        bounces: 16,
+        seed: 0,
+        geometry_bound: 0.0,
+        ism_resolution: 16,
+        ism_points: 2048,
+        ism_bias: 0.05,
+        ssbc_steps: 1,
+        ssbc_solid_angle: 0.08,
+        ssbc_discontinuity_solid_angle: 0.04,
+        ssbc_levels: 6,
+        ssbc_blur: true,
+        intensity: 1.0,
+    };
+    /// 160 paths (about 530 VPLs at albedo 0.7), 32² shadow maps of 4096 points, one SSBC step (the
+    /// default).
+    pub const MEDIUM: Self = Self {
+        light_paths: 160,
+        ism_resolution: 32,
+        ism_points: 4096,
+        ..Self::LOW
+    };
+    /// 384 paths (about 1300 VPLs at albedo 0.7), 32² shadow maps of 8192 points, two SSBC steps.
+    pub const HIGH: Self = Self {
+        light_paths: 384,
+        ism_points: 8192,
+        ssbc_steps: 2,
+        ..Self::MEDIUM
+    };
+
+    /// The settings with every field in range, and the names of the fields that were not.
+    pub fn sanitized(&self) -> (Self, Vec<&'static str>) {
+        let mut s = self.clone();
+        let mut bad = Vec::new();
+        fn clamp_u(v: &mut u32, lo: u32, hi: u32, name: &'static str, bad: &mut Vec<&'static str>) {
+            if !(lo..=hi).contains(v) {
+                *v = (*v).clamp(lo, hi);
+                bad.push(name);
+            }
+        }
+        fn clamp_f(v: &mut f32, lo: f32, hi: f32, default: f32, name: &'static str, bad: &mut Vec<&'static str>) {
+            if !v.is_finite() {
+                *v = default;
+                bad.push(name);
+            } else if !(lo..=hi).contains(v) {
+                *v = v.clamp(lo, hi);
+                bad.push(name);
+            }
+        }
+        clamp_u(&mut s.light_paths, 1, 16384, "light_paths", &mut bad);
+        clamp_u(&mut s.bounces, 1, 32, "bounces", &mut bad);
+        if s.geometry_bound != 0.0 {
+            clamp_f(&mut s.geometry_bound, 1e-6, 1e6, 0.0, "geometry_bound", &mut bad);
+        }
+        clamp_u(&mut s.ism_resolution, 8, 128, "ism_resolution", &mut bad);
+        clamp_u(&mut s.ism_points, 64, 65536, "ism_points", &mut bad);
+        clamp_f(&mut s.ism_bias, 0.0, 1.0, 0.05, "ism_bias", &mut bad);
+        clamp_u(&mut s.ssbc_steps, 0, 3, "ssbc_steps", &mut bad);
+        clamp_f(&mut s.ssbc_solid_angle, 0.001, 1.0, 0.08, "ssbc_solid_angle", &mut bad);
+        clamp_f(&mut s.ssbc_discontinuity_solid_angle, 0.001, 1.0, 0.04, "ssbc_discontinuity_solid_angle", &mut bad);
+        clamp_u(&mut s.ssbc_levels, 1, 8, "ssbc_levels", &mut bad);
+        clamp_f(&mut s.intensity, 0.0, 1000.0, 1.0, "intensity", &mut bad);
+        (s, bad)
+    }
+
+    /// The VPL count this allows at most (paths × bounces; Russian roulette usually stops far below).
+    pub fn max_vpls(&self) -> u32 {
+        self.light_paths * self.bounces
+    }
+}
+
+impl Default for VplSettings {
+    fn default() -> Self {
+        Self::MEDIUM
+    }
+}
+
+/// The GPU capabilities the VPL method needs, as `(name, required, found)` for every shortfall.
+pub fn missing_capabilities(limits: &bevy::render::settings::WgpuLimits, compute: bool) -> Vec<(&'static str, u64, u64)> {
+    let mut missing = Vec::new();
+    let mut need = |name, required: u64, found: u64| {
+        if found < required {
+            missing.push((name, required, found));
+        }
+    };
+    need("compute shaders (DownlevelFlags::COMPUTE_SHADERS)", 1, compute as u64);
+    need("max_storage_buffers_per_shader_stage", 6, limits.max_storage_buffers_per_shader_stage as u64);
+    let threads = crate::WORKGROUP_SIZE as u64;
+    need("max_compute_workgroup_size_x", threads, limits.max_compute_workgroup_size_x as u64);
+    need("max_compute_invocations_per_workgroup", threads, limits.max_compute_invocations_per_workgroup as u64);
+    // The largest shadow-map buffer: 16384 × 32 VPLs would exceed any device; the extraction caps the VPL
+    // count to what fits (see `render::max_vpls_for`), so only a minimum is required here.
+    need("max_storage_buffer_binding_size", 1 << 24, limits.max_storage_buffer_binding_size);
+    missing
+}
+
+/// The VPL method: settings validation, the walks, the shadow maps, the gather. SSBC is
+/// [`crate::ssbc::SsbcPlugin`]. Added by [`crate::DiffuseGiPlugin`].
+pub struct VplPlugin;
+
+impl Plugin for VplPlugin {
+    fn build(&self, app: &mut App) {
+        let shaders = render::VplShaders {
+            types: crate::add_shader(app, "vpl/vpl_types.wgsl", include_str!("../../shaders/vpl/vpl_types.wgsl")),
+            ism: crate::add_shader(app, "vpl/ism.wgsl", include_str!("../../shaders/vpl/ism.wgsl")),
+            gather: crate::add_shader(app, "vpl/gather.wgsl", include_str!("../../shaders/vpl/gather.wgsl")),
+        };
+        app.register_type::<VplSettings>()
+            .init_resource::<extract::VplSet>()
+            .add_systems(
+                PostUpdate,
+                (extract::validate_vpl_settings, extract::update_vpls.after(crate::scene::SceneSnapshotSystems::Update)),
+            );
+        if let Some(render_app) = app.get_sub_app_mut(RenderApp) {
+            render_app.insert_resource(shaders);
+        }
+    }
+
+    fn finish(&self, app: &mut App) {
+        let Some(render_app) = app.get_sub_app_mut(RenderApp) else {
+            return;
+        };
+        let Some(device) = render_app.world().get_resource::<RenderDevice>() else {
+            return;
+        };
+        let limits = device.limits();
+        let compute = render_app.world().get_resource::<RenderAdapter>().is_none_or(|a| {
+            a.get_downlevel_capabilities()
+                .flags
+                .contains(bevy::render::render_resource::DownlevelFlags::COMPUTE_SHADERS)
+        });
+        if let Some((name, required, found)) = missing_capabilities(&limits, compute).first() {
+            let message = format!(
+                "bevy_diffuse_gi: the VPL method is disabled: the GPU lacks {name} (needs {required}, has {found}). \
+                 The app runs on without its bounced light."
+            );
+            crate::gi_warning(&mut app.world_mut().resource_mut::<crate::DiffuseGiWarnings>(), message);
+            return;
+        }
+        render::add_render_systems(render_app);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn presets_are_valid_and_grow_in_cost() {
+        for preset in [VplSettings::LOW, VplSettings::MEDIUM, VplSettings::HIGH] {
+            assert!(preset.sanitized().1.is_empty(), "{preset:?}");
+        }
+        assert!(VplSettings::LOW.max_vpls() < VplSettings::MEDIUM.max_vpls());
+        assert!(VplSettings::MEDIUM.max_vpls() < VplSettings::HIGH.max_vpls());
+        assert_eq!(VplSettings::default(), VplSettings::MEDIUM);
+    }
+
+    #[test]
+    fn invalid_settings_are_clamped_and_named() {
+        let s = VplSettings {
+            light_paths: 0,
+            bounces: 100,
+            geometry_bound: f32::NAN,
+            ism_resolution: 4096,
+            ism_bias: -1.0,
+            ssbc_steps: 9,
+            intensity: f32::INFINITY,
+            ..VplSettings::MEDIUM
+        };
+        let (clean, bad) = s.sanitized();
+        assert_eq!(
+            bad,
+            vec!["light_paths", "bounces", "geometry_bound", "ism_resolution", "ism_bias", "ssbc_steps", "intensity"]
+        );
+        assert_eq!((clean.light_paths, clean.bounces, clean.ism_resolution, clean.ssbc_steps), (1, 32, 128, 3));
+        assert_eq!((clean.geometry_bound, clean.ism_bias, clean.intensity), (0.0, 0.0, 1.0));
+        assert!(clean.sanitized().1.is_empty());
+    }
+
+    #[test]
+    fn a_device_with_webgpu_default_limits_runs_vpls() {
+        assert!(missing_capabilities(&bevy::render::settings::WgpuLimits::default(), true).is_empty());
+        let names: Vec<_> = missing_capabilities(&bevy::render::settings::WgpuLimits::downlevel_webgl2_defaults(), false)
+            .iter()
+            .map(|m| m.0)
+            .collect();
+        assert!(names.iter().any(|n| n.contains("COMPUTE_SHADERS")), "{names:?}");
+    }
+}

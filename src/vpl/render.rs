@@ -1,0 +1,440 @@
+//! Render world: the VPL buffers, the imperfect shadow maps (once per frame, before the cameras) and the
+//! per-view clamped gather.
+
+use bevy::core_pipeline::prepass::ViewPrepassTextures;
+use bevy::core_pipeline::schedule::camera_driver;
+use bevy::core_pipeline::{Core3d, FullscreenShader};
+use bevy::math::Vec4;
+use bevy::platform::collections::HashMap;
+use bevy::prelude::*;
+use bevy::render::diagnostic::RecordDiagnostics;
+use bevy::render::render_resource::binding_types::{
+    storage_buffer_read_only_sized, storage_buffer_sized, texture_2d, texture_depth_2d, uniform_buffer,
+};
+use bevy::render::render_resource::*;
+use bevy::render::renderer::{RenderContext, RenderDevice, RenderGraph, RenderGraphSystems, RenderQueue, ViewQuery};
+use bevy::render::view::{ViewUniform, ViewUniformOffset, ViewUniforms};
+use bevy::render::{ExtractSchedule, Render, RenderStartup, RenderSystems};
+use bevy::shader::{Shader, ShaderDefVal};
+
+use super::extract::{ExtractedVplSet, ExtractedVplSettings, extract_vpl_cameras, extract_vpl_set};
+use crate::camera::{GiDebugView, GiMethod};
+use crate::composite::{ExtractedDiffuseGi, GI_TARGET_FORMAT, GiViewSystems, GiViewTarget, clear_gi_target};
+
+/// The VPL shaders.
+#[derive(Resource, Clone)]
+pub struct VplShaders {
+    /// The `vpl_types` import library, kept alive by this handle.
+    #[expect(dead_code, reason = "only holds the library shader's handle")]
+    pub types: Handle<Shader>,
+    pub ism: Handle<Shader>,
+    pub gather: Handle<Shader>,
+}
+
+/// One VPL on the GPU (`Vpl` in `shaders/vpl/vpl_types.wgsl`).
+#[derive(ShaderType, Clone, Copy, Debug, Default)]
+pub struct GpuVpl {
+    pub position: Vec4,
+    pub normal: Vec4,
+    pub flux: Vec4,
+}
+
+/// The VPL uniform (`VplUniform` in `shaders/vpl/vpl_types.wgsl`): one entry for the shadow-map passes,
+/// one per VPL camera for its gather.
+#[derive(ShaderType, Clone, Copy, Debug, Default)]
+pub struct VplUniform {
+    pub vpl_count: u32,
+    pub ism_resolution: u32,
+    pub ism_stride: u32,
+    pub points_per_ism: u32,
+    pub point_count: u32,
+    pub geometry_bound: f32,
+    pub ism_bias: f32,
+    pub intensity: f32,
+}
+
+/// `u32` words of one VPL's shadow map and its two pull-push levels.
+pub fn ism_stride(resolution: u32) -> u32 {
+    let r = resolution;
+    r * r + (r / 2) * (r / 2) + (r / 4) * (r / 4)
+}
+
+/// The shadow-map side actually used: a multiple of 4 (two pull-push levels) in 8–128.
+pub fn ism_side(requested: u32) -> u32 {
+    (requested.clamp(8, 128) / 4) * 4
+}
+
+/// Key of the gather pipeline.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct VplGatherKey {
+    pub half_resolution: bool,
+    pub positions: bool,
+}
+
+/// Layouts and pipelines of the VPL passes.
+#[derive(Resource)]
+pub struct VplPipelines {
+    ism_layout: BindGroupLayoutDescriptor,
+    view_layout: BindGroupLayoutDescriptor,
+    gather_layout: BindGroupLayoutDescriptor,
+    splat: CachedComputePipelineId,
+    pull_push: CachedComputePipelineId,
+    shaders: VplShaders,
+    fullscreen: VertexState,
+}
+
+impl SpecializedRenderPipeline for VplPipelines {
+    type Key = VplGatherKey;
+
+    fn specialize(&self, key: Self::Key) -> RenderPipelineDescriptor {
+        let mut shader_defs = crate::shared_shader_defs();
+        shader_defs.push(ShaderDefVal::Int("GI_SCALE".into(), if key.half_resolution { 2 } else { 1 }));
+        if key.positions {
+            shader_defs.push("VPL_POSITIONS".into());
+        }
+        RenderPipelineDescriptor {
+            label: Some("diffuse_gi_vpl_gather_pipeline".into()),
+            layout: vec![self.view_layout.clone(), self.gather_layout.clone()],
+            vertex: self.fullscreen.clone(),
+            fragment: Some(FragmentState {
+                shader: self.shaders.gather.clone(),
+                shader_defs,
+                entry_point: Some("gather".into()),
+                targets: vec![Some(ColorTargetState {
+                    format: GI_TARGET_FORMAT,
+                    blend: None,
+                    write_mask: ColorWrites::ALL,
+                })],
+            }),
+            ..default()
+        }
+    }
+}
+
+fn init_vpl_pipelines(world: &mut World) {
+    let shaders = world.resource::<VplShaders>().clone();
+    let fullscreen = world.resource::<FullscreenShader>().to_vertex_state();
+    let ism_layout = BindGroupLayoutDescriptor::new(
+        "diffuse_gi_vpl_ism_layout",
+        &BindGroupLayoutEntries::sequential(
+            ShaderStages::COMPUTE,
+            (
+                uniform_buffer::<VplUniform>(true),
+                storage_buffer_read_only_sized(false, None),
+                storage_buffer_read_only_sized(false, None),
+                storage_buffer_sized(false, None),
+            ),
+        ),
+    );
+    let view_layout = BindGroupLayoutDescriptor::new(
+        "diffuse_gi_vpl_view_layout",
+        &BindGroupLayoutEntries::sequential(
+            ShaderStages::FRAGMENT,
+            (uniform_buffer::<ViewUniform>(true), texture_depth_2d(), texture_2d(TextureSampleType::Uint)),
+        ),
+    );
+    let gather_layout = BindGroupLayoutDescriptor::new(
+        "diffuse_gi_vpl_gather_layout",
+        &BindGroupLayoutEntries::sequential(
+            ShaderStages::FRAGMENT,
+            (
+                uniform_buffer::<VplUniform>(true),
+                storage_buffer_read_only_sized(false, None),
+                storage_buffer_read_only_sized(false, None),
+            ),
+        ),
+    );
+    let pipeline_cache = world.resource::<PipelineCache>();
+    let compute = |label: &'static str, entry: &'static str| {
+        pipeline_cache.queue_compute_pipeline(ComputePipelineDescriptor {
+            label: Some(label.into()),
+            layout: vec![ism_layout.clone()],
+            shader: shaders.ism.clone(),
+            shader_defs: crate::shared_shader_defs(),
+            entry_point: Some(entry.into()),
+            ..default()
+        })
+    };
+    let splat = compute("diffuse_gi_vpl_splat_pipeline", "splat");
+    let pull_push = compute("diffuse_gi_vpl_pull_push_pipeline", "pull_push");
+    world.insert_resource(VplPipelines {
+        ism_layout,
+        view_layout,
+        gather_layout,
+        splat,
+        pull_push,
+        shaders,
+        fullscreen,
+    });
+}
+
+/// The VPL method's GPU state, shared by every VPL camera.
+#[derive(Resource, Default)]
+pub struct VplGpu {
+    vpls: Option<Buffer>,
+    points: Option<Buffer>,
+    ism: Option<Buffer>,
+    vpl_count: u32,
+    point_count: u32,
+    ism_resolution: u32,
+    points_per_ism: u32,
+    uploaded: Option<(u64, u64)>,
+    /// The shadow maps need splatting (new VPLs, points or settings).
+    ism_dirty: bool,
+    uniforms: DynamicUniformBuffer<VplUniform>,
+    /// Offset of the shadow-map passes' uniform.
+    ism_offset: u32,
+    /// Per VPL camera: its gather uniform's offset and pipeline.
+    views: HashMap<Entity, (u32, CachedRenderPipelineId)>,
+}
+
+fn storage(device: &RenderDevice, label: &'static str, contents: &[u8]) -> Buffer {
+    device.create_buffer_with_data(&BufferInitDescriptor {
+        label: Some(label),
+        contents,
+        usage: BufferUsages::STORAGE,
+    })
+}
+
+/// The most VPLs whose shadow maps fit in one storage binding of this device.
+fn max_vpls_for(device: &RenderDevice, stride: u32) -> u32 {
+    let limit = device.limits().max_storage_buffer_binding_size;
+    (limit / (stride as u64 * 4)).min(u32::MAX as u64) as u32
+}
+
+#[expect(clippy::too_many_arguments, reason = "prepares every per-frame VPL input")]
+fn prepare_vpls(
+    set: Res<ExtractedVplSet>,
+    mut gpu: ResMut<VplGpu>,
+    views: Query<(Entity, &ExtractedDiffuseGi, &ExtractedVplSettings)>,
+    pipelines: Res<VplPipelines>,
+    mut specialized: ResMut<SpecializedRenderPipelines<VplPipelines>>,
+    pipeline_cache: Res<PipelineCache>,
+    device: Res<RenderDevice>,
+    queue: Res<RenderQueue>,
+) {
+    let set = &set.0;
+    let gpu = &mut *gpu;
+    gpu.views.clear();
+    if set.vpls.is_empty() && set.points.is_empty() {
+        // No VPL camera (or no light): free everything.
+        if gpu.vpls.is_some() || gpu.ism.is_some() {
+            *gpu = VplGpu::default();
+        }
+        return;
+    }
+    let side = ism_side(set.settings.ism_resolution);
+    let stride = ism_stride(side);
+    let key = (set.generation, set.points_generation);
+    if gpu.uploaded != Some(key) {
+        let mut vpls: Vec<GpuVpl> = set
+            .vpls
+            .iter()
+            .map(|v| GpuVpl {
+                position: v.position.extend(1.0),
+                normal: v.normal.extend(0.0),
+                flux: v.flux.extend(v.bounce as f32),
+            })
+            .collect();
+        let limit = max_vpls_for(&device, stride) as usize;
+        if vpls.len() > limit {
+            bevy::log::warn_once!(
+                "bevy_diffuse_gi: {} VPLs' shadow maps exceed max_storage_buffer_binding_size; using the first {limit}",
+                vpls.len()
+            );
+            vpls.truncate(limit);
+        }
+        gpu.vpl_count = vpls.len() as u32;
+        if vpls.is_empty() {
+            vpls.push(GpuVpl::default());
+        }
+        let mut bytes = StorageBuffer::<Vec<GpuVpl>>::from(vpls);
+        bytes.write_buffer(&device, &queue);
+        gpu.vpls = bytes.buffer().cloned();
+        let mut points: Vec<[f32; 4]> = set.points.iter().map(|p| p.position.extend(1.0).to_array()).collect();
+        gpu.point_count = points.len() as u32;
+        if points.is_empty() {
+            points.push([0.0; 4]);
+        }
+        gpu.points = Some(storage(&device, "diffuse_gi_vpl_points", bytemuck::cast_slice(&points)));
+        let words = (gpu.vpl_count.max(1) as u64) * stride as u64;
+        gpu.ism = Some(device.create_buffer(&BufferDescriptor {
+            label: Some("diffuse_gi_vpl_ism"),
+            size: words * 4,
+            usage: BufferUsages::STORAGE | BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        }));
+        gpu.ism_resolution = side;
+        gpu.points_per_ism = set.settings.ism_points.min(gpu.point_count.max(1));
+        gpu.uploaded = Some(key);
+        gpu.ism_dirty = true;
+    }
+
+    let base = VplUniform {
+        vpl_count: gpu.vpl_count,
+        ism_resolution: gpu.ism_resolution,
+        ism_stride: stride,
+        points_per_ism: gpu.points_per_ism,
+        point_count: gpu.point_count,
+        geometry_bound: set.automatic_bound,
+        ism_bias: set.settings.ism_bias,
+        intensity: 1.0,
+    };
+    gpu.uniforms.clear();
+    gpu.ism_offset = gpu.uniforms.push(&base);
+    for (entity, gi, settings) in &views {
+        if gi.0.method != GiMethod::Vpl {
+            continue;
+        }
+        let s = &settings.0;
+        let uniform = VplUniform {
+            geometry_bound: effective_bound(s.geometry_bound, set.automatic_bound),
+            ism_bias: s.ism_bias,
+            intensity: s.intensity,
+            ..base
+        };
+        let offset = gpu.uniforms.push(&uniform);
+        let pipeline = specialized.specialize(
+            &pipeline_cache,
+            &pipelines,
+            VplGatherKey {
+                half_resolution: gi.0.half_resolution,
+                positions: gi.0.debug_view == GiDebugView::VplPositions,
+            },
+        );
+        gpu.views.insert(entity, (offset, pipeline));
+    }
+    gpu.uniforms.write_buffer(&device, &queue);
+}
+
+/// The bound `b` a camera uses: its own, or the VPL set's automatic one when it asks for 0.
+pub fn effective_bound(setting: f32, automatic: f32) -> f32 {
+    if setting > 0.0 { setting } else { automatic }
+}
+
+/// Splats and pull-pushes the imperfect shadow maps, once per frame before the cameras and only after
+/// the VPLs or the points changed.
+fn build_ism(mut gpu: ResMut<VplGpu>, pipelines: Res<VplPipelines>, pipeline_cache: Res<PipelineCache>, mut ctx: RenderContext) {
+    if !gpu.ism_dirty {
+        return;
+    }
+    let (Some(splat), Some(pull_push), Some(vpls), Some(points), Some(ism), Some(uniforms)) = (
+        pipeline_cache.get_compute_pipeline(pipelines.splat),
+        pipeline_cache.get_compute_pipeline(pipelines.pull_push),
+        gpu.vpls.as_ref(),
+        gpu.points.as_ref(),
+        gpu.ism.as_ref(),
+        gpu.uniforms.binding(),
+    ) else {
+        return;
+    };
+    let group = ctx.render_device().create_bind_group(
+        "diffuse_gi_vpl_ism_bind_group",
+        &pipeline_cache.get_bind_group_layout(&pipelines.ism_layout),
+        &BindGroupEntries::sequential((uniforms, vpls.as_entire_binding(), points.as_entire_binding(), ism.as_entire_binding())),
+    );
+    let ism = ism.clone();
+    let count = gpu.vpl_count;
+    let per_ism = gpu.points_per_ism;
+    let offset = gpu.ism_offset;
+    let diagnostics = ctx.diagnostic_recorder();
+    let diagnostics = diagnostics.as_deref();
+    let encoder = ctx.command_encoder();
+    encoder.clear_buffer(&ism, 0, None);
+    {
+        let mut pass = encoder.begin_compute_pass(&ComputePassDescriptor {
+            label: Some("diffuse_gi_vpl_ism"),
+            timestamp_writes: None,
+        });
+        let span = diagnostics.pass_span(&mut pass, "diffuse_gi/vpl_ism");
+        let rows = |n: u32| (n.min(65535), n.div_ceil(65535).max(1));
+        let (y, z) = rows(count);
+        pass.set_pipeline(splat);
+        pass.set_bind_group(0, &group, &[offset]);
+        pass.dispatch_workgroups(per_ism.div_ceil(crate::WORKGROUP_SIZE), y, z);
+        pass.set_pipeline(pull_push);
+        let (x, y) = rows(count);
+        pass.dispatch_workgroups(x, y, 1);
+        span.end(&mut pass);
+    }
+    gpu.ism_dirty = false;
+}
+
+/// The clamped gather of one VPL camera into its indirect-light target.
+fn gather_vpls(
+    view: ViewQuery<(Entity, &ExtractedDiffuseGi, &ViewUniformOffset, &ViewPrepassTextures, &GiViewTarget)>,
+    gpu: Res<VplGpu>,
+    pipelines: Res<VplPipelines>,
+    pipeline_cache: Res<PipelineCache>,
+    view_uniforms: Res<ViewUniforms>,
+    mut ctx: RenderContext,
+) {
+    let (entity, gi, view_offset, prepass, target) = view.into_inner();
+    if gi.0.method != GiMethod::Vpl || gpu.vpl_count == 0 || gpu.ism_dirty {
+        return;
+    }
+    let (Some(&(offset, pipeline_id)), Some(uniforms), Some(depth), Some(gbuffer), Some(vpl_uniforms), Some(vpls), Some(ism)) = (
+        gpu.views.get(&entity),
+        view_uniforms.uniforms.binding(),
+        prepass.depth_view(),
+        prepass.deferred_view(),
+        gpu.uniforms.binding(),
+        gpu.vpls.as_ref(),
+        gpu.ism.as_ref(),
+    ) else {
+        return;
+    };
+    let Some(pipeline) = pipeline_cache.get_render_pipeline(pipeline_id) else {
+        return;
+    };
+    let device = ctx.render_device().clone();
+    let view_group = device.create_bind_group(
+        "diffuse_gi_vpl_view_bind_group",
+        &pipeline_cache.get_bind_group_layout(&pipelines.view_layout),
+        &BindGroupEntries::sequential((uniforms, depth, gbuffer)),
+    );
+    let gather_group = device.create_bind_group(
+        "diffuse_gi_vpl_gather_bind_group",
+        &pipeline_cache.get_bind_group_layout(&pipelines.gather_layout),
+        &BindGroupEntries::sequential((vpl_uniforms, vpls.as_entire_binding(), ism.as_entire_binding())),
+    );
+    let diagnostics = ctx.diagnostic_recorder();
+    let diagnostics = diagnostics.as_deref();
+    let span = diagnostics.time_span(ctx.command_encoder(), "diffuse_gi/vpl_gather");
+    {
+        let mut pass = ctx.begin_tracked_render_pass(RenderPassDescriptor {
+            label: Some("diffuse_gi_vpl_gather"),
+            color_attachments: &[Some(RenderPassColorAttachment {
+                view: &target.texture.default_view,
+                depth_slice: None,
+                resolve_target: None,
+                ops: Operations {
+                    load: LoadOp::Load,
+                    store: StoreOp::Store,
+                },
+            })],
+            depth_stencil_attachment: None,
+            timestamp_writes: None,
+            occlusion_query_set: None,
+            multiview_mask: None,
+        });
+        pass.set_render_pipeline(pipeline);
+        pass.set_bind_group(0, &view_group, &[view_offset.offset]);
+        pass.set_bind_group(1, &gather_group, &[offset]);
+        pass.draw(0..3, 0..1);
+    }
+    span.end(ctx.command_encoder());
+}
+
+/// Adds the VPL method's render-world systems; called from [`super::VplPlugin::finish`].
+pub(crate) fn add_render_systems(render_app: &mut SubApp) {
+    render_app
+        .init_resource::<ExtractedVplSet>()
+        .init_resource::<VplGpu>()
+        .init_resource::<SpecializedRenderPipelines<VplPipelines>>()
+        .add_systems(RenderStartup, init_vpl_pipelines)
+        .add_systems(ExtractSchedule, (extract_vpl_set, extract_vpl_cameras))
+        .add_systems(Render, prepare_vpls.in_set(RenderSystems::PrepareResources))
+        .add_systems(RenderGraph, build_ism.in_set(RenderGraphSystems::Render).before(camera_driver))
+        .add_systems(Core3d, gather_vpls.in_set(GiViewSystems::Produce).after(clear_gi_target));
+}
