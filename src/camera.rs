@@ -60,6 +60,12 @@ pub enum GiMethod {
     Vpl,
 }
 
+impl serde::Serialize for GiMethod {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        serializer.serialize_str(self.name())
+    }
+}
+
 impl GiMethod {
     /// Every method, for menus.
     pub const ALL: [GiMethod; 2] = [GiMethod::RadianceHints, GiMethod::Vpl];

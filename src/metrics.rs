@@ -31,7 +31,13 @@ pub struct ErrorMetrics {
     pub pixels: usize,
     /// Blocks wholly inside the mask.
     pub blocks: usize,
+    /// Share of those blocks whose mean (summed over RGB) is more than 50 % off the truth's: how much of
+    /// the image is visibly wrong, whatever the average error.
+    pub blocks_over_half_off: f64,
 }
+
+/// A block is "off" when its mean differs from the truth's by more than this fraction of the truth's.
+pub const BLOCK_OFF_TOLERANCE: f64 = 0.5;
 
 /// Why two images cannot be compared.
 #[derive(Debug)]
@@ -132,6 +138,14 @@ pub fn compare(a: &HdrImage, r: &HdrImage) -> Result<ErrorMetrics, MetricsError>
 
     let relative = relative_rmse(&pa, &pr).ok_or(MetricsError::EmptyMask)?;
     let block = relative_rmse(&ba, &br).ok_or(MetricsError::EmptyMask)?;
+    let off = ba
+        .iter()
+        .zip(&br)
+        .filter(|(a, r)| {
+            let (sa, sr) = (a.iter().sum::<f64>(), r.iter().sum::<f64>());
+            (sa - sr).abs() > BLOCK_OFF_TOLERANCE * sr
+        })
+        .count();
     Ok(ErrorMetrics {
         relative_rmse: relative,
         block_relative_rmse: block,
@@ -139,6 +153,7 @@ pub fn compare(a: &HdrImage, r: &HdrImage) -> Result<ErrorMetrics, MetricsError>
         flip: None,
         pixels: pa.len(),
         blocks: ba.len(),
+        blocks_over_half_off: off as f64 / ba.len().max(1) as f64,
     })
 }
 
@@ -256,6 +271,22 @@ mod tests {
         assert_close(m.relative_rmse, 0.5, 1e-12);
         assert_close(m.block_relative_rmse, 0.5, 1e-12);
         assert_close(m.energy_ratio, 1.5, 1e-12);
+    }
+
+    #[test]
+    fn blocks_more_than_half_off_are_counted() {
+        // One 4×4 block of four at 1.6× the truth (60 % off), one at 1.4× (within 50 %), two exact.
+        let r = HdrImage::filled(8, 8, [1.0, 1.0, 1.0, 1.0]);
+        let mut a = r.clone();
+        for y in 0..4 {
+            for x in 0..8 {
+                let v = if x < 4 { 1.6 } else { 1.4 };
+                a.set(x, y, [v, v, v, 1.0]);
+            }
+        }
+        let m = compare(&a, &r).unwrap();
+        assert_close(m.blocks_over_half_off, 0.25, 1e-12);
+        assert_eq!(compare(&r, &r).unwrap().blocks_over_half_off, 0.0);
     }
 
     #[test]

@@ -24,12 +24,15 @@ const GI_SCALE: i32 = #{GI_SCALE};
 
 // Whether VPL `i` sees the point at distance `d` in local direction `local` (fraction, 0–1), for a
 // receiver whose normal makes cosine `cos_x` with the direction to the VPL. The depth tolerance is
-// `ism_bias · d` plus a slope-scaled part: within one texel (about 4/R radians at the paraboloid's centre)
-// a receiver tilted by θ_x spans d · (4/R) · tan θ_x of depth, which must not shadow itself.
+// `ism_bias · d`, plus a slope-scaled part (within one texel, about 4/R radians at the paraboloid's
+// centre, a receiver tilted by θ_x spans d · (4/R) · tan θ_x of depth, which must not shadow itself),
+// plus the radius of the surface disk a splatted point stands for.
 fn visibility(i: u32, local: vec3<f32>, d: f32, cos_x: f32) -> f32 {
     let r = u.ism_resolution;
     let tan_x = min(sqrt(max(1.0 - cos_x * cos_x, 0.0)) / max(cos_x, 1e-3), 8.0);
-    let tolerance = d * (u.ism_bias + 4.0 / f32(r) * tan_x);
+    // Points are splatted as disks of `point_radius`: the receiver's own surface may stand that much
+    // closer to the VPL within its footprint.
+    let tolerance = d * (u.ism_bias + 4.0 / f32(r) * tan_x) + u.point_radius;
     let p = paraboloid_coords(local, r) - 0.5;
     let base = vec2<i32>(floor(p));
     let f = p - floor(p);

@@ -1,5 +1,6 @@
 // Imperfect shadow maps (Ritschel et al. 2008): every VPL splats its own run of scene points into a small
-// paraboloid depth map over its hemisphere, then pull-push fills the holes the sparse points leave.
+// paraboloid depth map over its hemisphere, each as the footprint of the surface disk it stands for, then
+// pull-push fills the holes the sparse points leave.
 //
 // A texel stores the nearest point's inverse distance as f32 bits (0 = no point = unoccluded), so the
 // nearest splat wins with an integer atomicMax and a cleared buffer means "empty".
@@ -31,8 +32,19 @@ fn splat(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) 
         return;
     }
     let r = u.ism_resolution;
-    let t = min(vec2<u32>(paraboloid_coords(local, r)), vec2(r - 1u));
-    atomicMax(&ism[ism_index(u, vpl_index, 0u, t)], bitcast<u32>(1.0 / d));
+    let centre = paraboloid_coords(local, r);
+    // The point stands for a disk of `point_radius`: splat its footprint (the paraboloid's texels span
+    // 2/R to 4/R radians), so that nearby surfaces, whose few points land far apart, leave no holes
+    // that light would pass through. At most 7 × 7 texels.
+    let footprint = min(u.point_radius / d * f32(r) / 3.0, 3.0);
+    let lo = vec2<i32>(floor(centre - footprint));
+    let hi = vec2<i32>(floor(centre + footprint));
+    let value = bitcast<u32>(1.0 / d);
+    for (var y = max(lo.y, 0); y <= min(hi.y, i32(r) - 1); y++) {
+        for (var x = max(lo.x, 0); x <= min(hi.x, i32(r) - 1); x++) {
+            atomicMax(&ism[ism_index(u, vpl_index, 0u, vec2(u32(x), u32(y)))], value);
+        }
+    }
 }
 
 fn load(vpl: u32, level: u32, t: vec2<u32>) -> u32 {

@@ -29,6 +29,8 @@ struct VplUniform {
     ism_bias: f32,
     // Multiplies the gathered light.
     intensity: f32,
+    // Radius of the surface disk one shadow-map point stands for, metres.
+    point_radius: f32,
 }
 
 // A continuous orthonormal basis (t, b, n) around unit n (Duff et al. 2017); the same in every pass.

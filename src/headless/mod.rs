@@ -242,7 +242,7 @@ fn build_app(options: &HeadlessOptions, outcome: Arc<Mutex<Outcome>>) -> App {
         spawned_rh: None,
     })
     .add_systems(Startup, setup)
-    .add_systems(Update, (attach_camera, spawn_rh_volume, animate_lights, drive).chain());
+    .add_systems(Update, (attach_camera, spawn_rh_volume, animate_lights, switch_method, drive).chain());
     app
 }
 
@@ -312,7 +312,9 @@ fn spawn_rh_volume(
     volumes: Query<(), With<RadianceHintsVolume>>,
     meshes: Query<(&bevy::camera::primitives::Aabb, &GlobalTransform), With<Mesh3d>>,
 ) {
-    if headless.options.method != HeadlessMethod::Gi(GiMethod::RadianceHints) || *status != SceneStatus::Ready || !volumes.is_empty() {
+    let uses_rh = headless.options.method == HeadlessMethod::Gi(GiMethod::RadianceHints)
+        || headless.options.switch_method.is_some_and(|(_, m)| m == GiMethod::RadianceHints);
+    if !uses_rh || *status != SceneStatus::Ready || !volumes.is_empty() {
         return;
     }
     let Some((lo, hi)) = crate::scenes::mesh_bounds(meshes) else {
@@ -448,6 +450,26 @@ fn drive(
             finish(&mut headless, &mut exit, None);
         }
         Phase::Done => {}
+    }
+}
+
+/// `--switch-method`: changes the camera's method once the given number of rendering frames has passed.
+fn switch_method(
+    mut commands: Commands,
+    headless: Res<Headless>,
+    mut cameras: Query<(Entity, &mut DiffuseGi), With<SceneCamera>>,
+) {
+    let Some((after, method)) = headless.options.switch_method else {
+        return;
+    };
+    if headless.phase != Phase::Rendering || headless.phase_frames + 1 != after {
+        return;
+    }
+    for (entity, mut gi) in &mut cameras {
+        gi.method = method;
+        if method == GiMethod::Vpl {
+            commands.entity(entity).insert(headless.options.vpl.clone());
+        }
     }
 }
 

@@ -112,6 +112,10 @@ pub struct HeadlessOptions {
     /// Move every GI light a little each frame (a 2 cm circle), so that the RSM and the GI volume are
     /// recomputed every frame as they are for a moving light: the dynamic-light timing case.
     pub animate_light: bool,
+    /// GI methods: after this many frames of the `--frames`, switch the camera to another method (the
+    /// run-time switch a game makes from its settings menu). The new method's settings come from the
+    /// same `--preset` and overrides.
+    pub switch_method: Option<(u32, GiMethod)>,
 }
 
 impl Default for HeadlessOptions {
@@ -137,6 +141,7 @@ impl Default for HeadlessOptions {
             debug_view: None,
             dump_volume: None,
             animate_light: false,
+            switch_method: None,
         }
     }
 }
@@ -156,7 +161,7 @@ usage: headless [--scene cornell|PATH.glb] [--size WxH] [--frames N] [--out FILE
                 [--vpl-ism-points N] [--vpl-ism-bias F] [--ssbc-steps N] [--ssbc-solid-angle SR]
                 [--ssbc-levels N] [--ssbc-blur on|off]
                 [--half-res] [--gi-output composite|irradiance-volume] [--debug-view VIEW]
-                [--animate-light]
+                [--animate-light] [--switch-method FRAMES:rh|vpl]
 
   --scene          a standard scene name or a glTF 2.0 file            (default cornell)
   --size           image size in pixels, 1..=8192 each                  (default 256x256)
@@ -183,7 +188,8 @@ usage: headless [--scene cornell|PATH.glb] [--size WxH] [--frames N] [--out FILE
   --gi-output      composite (per pixel, default) or irradiance-volume (Bevy's light probe)
   --debug-view     indirect, irradiance, hint-grid, rsm-flux, rsm-normal, rsm-position,
                    vpl-clamped, vpl-compensation or vpl-positions
-  --animate-light  move the GI lights on a 2 cm circle every frame (times the dynamic-light case)";
+  --animate-light  move the GI lights on a 2 cm circle every frame (times the dynamic-light case)
+  --switch-method  after FRAMES of the --frames, switch the camera to the given GI method";
 
 fn value<'a>(flag: &str, args: &mut impl Iterator<Item = &'a str>) -> Result<&'a str, String> {
     args.next().ok_or_else(|| format!("{flag} needs a value"))
@@ -325,6 +331,17 @@ pub fn parse_args<'a>(args: impl IntoIterator<Item = &'a str>) -> Result<Headles
             "--dump-volume" => options.dump_volume = Some(PathBuf::from(value(flag, &mut args)?)),
             "--half-res" => options.half_resolution = true,
             "--animate-light" => options.animate_light = true,
+            "--switch-method" => {
+                let text = value(flag, &mut args)?;
+                let (frames, method) = text
+                    .split_once(':')
+                    .ok_or_else(|| format!("--switch-method: `{text}` is not FRAMES:METHOD"))?;
+                let frames = number(flag, frames, 1, 100_000)?;
+                let Some(method) = HeadlessMethod::parse(method)?.gi() else {
+                    return Err(format!("--switch-method: `{method}` is not a GI method"));
+                };
+                options.switch_method = Some((frames, method));
+            }
             "--debug-view" => {
                 use crate::camera::GiDebugView as V;
                 options.debug_view = Some(match value(flag, &mut args)? {
@@ -355,6 +372,12 @@ pub fn parse_args<'a>(args: impl IntoIterator<Item = &'a str>) -> Result<Headles
             "--help" | "-h" => return Err(USAGE.to_string()),
             other => return Err(format!("unknown flag `{other}`\n{USAGE}")),
         }
+    }
+    if options.switch_method.is_some_and(|(frames, _)| frames >= options.frames) {
+        return Err("--switch-method: the switch must come before the last of --frames".into());
+    }
+    if options.switch_method.is_some() && options.method.gi().is_none() {
+        return Err("--switch-method: switches from a GI method (--method rh or vpl)".into());
     }
     if options.indirect_only && options.gi_output == GiOutput::IrradianceVolume {
         return Err("--indirect-only measures the per-pixel reconstruction; render the IrradianceVolume output \

@@ -67,8 +67,16 @@
 //! pass reads and writes the same layout, 32-bit floats keep HDR range without per-scene scaling, and no
 //! float32-filterable feature is needed (trilinear interpolation, with visibility, is done in the shader).
 //!
+//! # Where the passes run
+//! Radiance Hints is a method of the GI frame ([`crate::composite`]). The RSM faces and the volume
+//! updates are view-independent and run once per frame in the `RenderGraph` schedule, before any camera
+//! (volumes with the §8 depth occlusion excepted: they read a camera's depth, so they update in the first
+//! Radiance Hints camera's `Core3d` run, after its prepass). The reconstruction is per view, in
+//! [`GiViewSystems::Produce`](crate::composite::GiViewSystems), into the frame's target.
+//!
 //! # Cost (skipping what a scene does not need)
-//! No [`DiffuseGi`](crate::camera::DiffuseGi) camera or no volume: no pass runs. A volume updates only when
+//! No camera with [`GiMethod::RadianceHints`](crate::camera::GiMethod) or no volume: no pass runs, no RSM
+//! is drawn, and the volumes' GPU state is dropped (switching a camera to another method frees it). A volume updates only when
 //! its lights' RSMs, its settings, its transform or the scene's geometry change, and then for the frames
 //! the blend and the refinement need; otherwise last frame's field is reused and only the per-pixel
 //! reconstruction and composite run. With the §8 depth occlusion the volume updates every frame.

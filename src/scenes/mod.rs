@@ -3,6 +3,8 @@
 //!
 //! * [`StandardScene::Cornell`]: the Cornell box with a spot light (`cornell.rs`).
 //! * [`StandardScene::Cellar`]: two rooms and a door, lit from one, seen from the other (`cellar.rs`).
+//! * [`StandardScene::SponzaLike`]: a 12 m atrium with columns, sunlit through a roof opening
+//!   (`sponza_like.rs`).
 //! * [`StandardScene::Gltf`]: any glTF 2.0 file, loaded through Bevy's glTF loader (meshes,
 //!   `StandardMaterial`s, `KHR_lights_punctual` lights, the first camera). Bevy spawns glTF lights without
 //!   shadows; here they get shadows on and a [`GiLight`], so that a wall blocks light in the game as it
@@ -14,6 +16,7 @@
 
 pub mod cellar;
 pub mod cornell;
+pub mod sponza_like;
 
 use std::path::{Path, PathBuf};
 
@@ -28,6 +31,7 @@ use crate::light::GiLight;
 
 pub use cellar::{CELLAR_EV100, cellar_snapshot, spawn_cellar};
 pub use cornell::{CORNELL_EV100, cornell_snapshot, spawn_cornell};
+pub use sponza_like::{SPONZA_EV100, spawn_sponza_like, sponza_like_snapshot};
 
 /// A scene the crate knows how to build.
 #[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
@@ -37,19 +41,23 @@ pub enum StandardScene {
     /// Two rooms joined by a door, a flashlight in one, the camera in the other: light leaking through
     /// walls.
     Cellar,
+    /// A 12 m atrium with columns, lit only by the sun through a roof opening: mostly light that bounced
+    /// twice or more.
+    SponzaLike,
     /// A glTF 2.0 file (`.glb` or `.gltf`).
     Gltf(PathBuf),
 }
 
 impl StandardScene {
     /// Names accepted by [`StandardScene::parse`] besides file paths.
-    pub const NAMES: &'static [&'static str] = &["cornell", "cellar"];
+    pub const NAMES: &'static [&'static str] = &["cornell", "cellar", "sponza_like"];
 
     /// A scene name, or a path to a `.glb`/`.gltf` file (which must exist).
     pub fn parse(text: &str) -> Result<Self, String> {
         match text {
             "cornell" => Ok(Self::Cornell),
             "cellar" => Ok(Self::Cellar),
+            "sponza_like" => Ok(Self::SponzaLike),
             path if path.ends_with(".glb") || path.ends_with(".gltf") => {
                 let p = Path::new(path);
                 if !p.is_file() {
@@ -69,6 +77,7 @@ impl StandardScene {
         match self {
             Self::Cornell => "cornell".into(),
             Self::Cellar => "cellar".into(),
+            Self::SponzaLike => "sponza_like".into(),
             Self::Gltf(path) => path.display().to_string(),
         }
     }
@@ -137,6 +146,10 @@ pub fn spawn_standard_scene(
         }
         StandardScene::Cellar => {
             spawn_cellar(commands, meshes, materials, ev100.unwrap_or(CELLAR_EV100));
+            commands.insert_resource(SceneStatus::Ready);
+        }
+        StandardScene::SponzaLike => {
+            spawn_sponza_like(commands, meshes, materials, ev100.unwrap_or(SPONZA_EV100));
             commands.insert_resource(SceneStatus::Ready);
         }
         StandardScene::Gltf(path) => {

@@ -12,7 +12,8 @@ use bevy::diagnostic::DiagnosticsStore;
 use bevy::prelude::*;
 use bevy_egui::{EguiContexts, EguiPlugin, EguiPrimaryContextPass, egui};
 
-use crate::camera::{DiffuseGi, GiDebugView, GiOutput};
+use crate::camera::{DiffuseGi, GiDebugView, GiMethod, GiOutput};
+use crate::vpl::VplSettings;
 use crate::light::GiLight;
 use crate::radiance_hints::{DepthOcclusion, RadianceHintsVolume};
 use crate::sh::ShOrder;
@@ -31,7 +32,8 @@ impl Plugin for DiffuseGiInspectorPlugin {
 
 fn inspector_ui(
     mut contexts: EguiContexts,
-    mut cameras: Query<(Entity, Option<&Name>, &mut DiffuseGi)>,
+    mut commands: Commands,
+    mut cameras: Query<(Entity, Option<&Name>, &mut DiffuseGi, Option<&mut VplSettings>)>,
     mut volumes: Query<(Entity, Option<&Name>, &mut RadianceHintsVolume)>,
     mut lights: Query<(Entity, Option<&Name>, &mut GiLight)>,
     diagnostics: Option<Res<DiagnosticsStore>>,
@@ -39,10 +41,17 @@ fn inspector_ui(
     let label = |entity: Entity, name: Option<&Name>| name.map_or_else(|| format!("{entity}"), |n| n.to_string());
     egui::Window::new("Diffuse GI").default_width(330.0).show(contexts.ctx_mut()?, |ui| {
         egui::CollapsingHeader::new("Cameras").default_open(true).show(ui, |ui| {
-            for (entity, name, mut gi) in &mut cameras {
+            for (entity, name, mut gi, vpl) in &mut cameras {
                 ui.label(label(entity, name));
                 let mut g = gi.clone();
                 ui.checkbox(&mut g.enabled, "bounced light (G)");
+                egui::ComboBox::from_label("method (M)")
+                    .selected_text(format!("{:?}", g.method))
+                    .show_ui(ui, |ui| {
+                        for method in GiMethod::ALL {
+                            ui.selectable_value(&mut g.method, method, format!("{method:?}"));
+                        }
+                    });
                 egui::ComboBox::from_label("debug view (V)")
                     .selected_text(format!("{:?}", g.debug_view))
                     .show_ui(ui, |ui| {
@@ -56,9 +65,21 @@ fn inspector_ui(
                         ui.selectable_value(&mut g.output, GiOutput::Composite, "Composite (per pixel)");
                         ui.selectable_value(&mut g.output, GiOutput::IrradianceVolume, "IrradianceVolume");
                     });
-                ui.checkbox(&mut g.half_resolution, "half-resolution reconstruction");
+                ui.checkbox(&mut g.half_resolution, "half resolution (every method)");
                 if g != *gi {
                     *gi = g;
+                }
+                if gi.method == GiMethod::Vpl {
+                    match vpl {
+                        Some(mut settings) => {
+                            ui.push_id(entity, |ui| vpl_ui(ui, &mut settings));
+                        }
+                        None => {
+                            if ui.button("tune VPL settings (adds VplSettings::MEDIUM)").clicked() {
+                                commands.entity(entity).insert(VplSettings::MEDIUM);
+                            }
+                        }
+                    }
                 }
                 ui.separator();
             }
@@ -105,6 +126,39 @@ fn inspector_ui(
         });
     });
     Ok(())
+}
+
+/// The widgets of a camera's [`VplSettings`]; each range is the field's valid range.
+fn vpl_ui(ui: &mut egui::Ui, settings: &mut Mut<VplSettings>) {
+    let mut v = (**settings).clone();
+    ui.horizontal(|ui| {
+        ui.label("VPL preset");
+        for (name, preset) in [("Low", VplSettings::LOW), ("Medium", VplSettings::MEDIUM), ("High", VplSettings::HIGH)] {
+            if ui.button(name).clicked() {
+                v = preset;
+            }
+        }
+    });
+    ui.add(egui::Slider::new(&mut v.light_paths, 1..=16384).logarithmic(true).text("light paths"));
+    ui.add(egui::Slider::new(&mut v.bounces, 1..=32).text("max bounces"));
+    ui.add(egui::DragValue::new(&mut v.seed).prefix("seed "));
+    ui.add(egui::Slider::new(&mut v.geometry_bound, 0.0..=1000.0).logarithmic(true).text("bound b (1/m², 0 = auto)"));
+    ui.add(egui::Slider::new(&mut v.ism_resolution, 8..=128).text("shadow map side (texels)"));
+    ui.add(egui::Slider::new(&mut v.ism_points, 64..=65536).logarithmic(true).text("points per shadow map"));
+    ui.add(egui::Slider::new(&mut v.ism_bias, 0.0..=1.0).text("shadow bias (× distance)"));
+    ui.add(egui::Slider::new(&mut v.ssbc_steps, 0..=3).text("SSBC steps"));
+    ui.add(egui::Slider::new(&mut v.ssbc_solid_angle, 0.001..=1.0).logarithmic(true).text("SSBC refine above (sr)"));
+    ui.add(
+        egui::Slider::new(&mut v.ssbc_discontinuity_solid_angle, 0.001..=1.0)
+            .logarithmic(true)
+            .text("SSBC refine at edges above (sr)"),
+    );
+    ui.add(egui::Slider::new(&mut v.ssbc_levels, 1..=8).text("SSBC levels"));
+    ui.checkbox(&mut v.ssbc_blur, "SSBC blur");
+    ui.add(egui::Slider::new(&mut v.intensity, 0.0..=1000.0).logarithmic(true).text("intensity"));
+    if v != **settings {
+        **settings = v;
+    }
 }
 
 fn volume_ui(ui: &mut egui::Ui, label: &str, volume: &mut Mut<RadianceHintsVolume>) {

@@ -33,6 +33,8 @@ pub struct VplSet {
     pub settings: VplSettings,
     /// The automatic `b` for this set ([`automatic_bound`]), 1/m².
     pub automatic_bound: f32,
+    /// Total surface area of the scene, m² (each shadow map's points share it).
+    pub surface_area: f32,
     key: Option<VplKey>,
     points_key: Option<(u64, u32)>,
 }
@@ -128,7 +130,8 @@ pub(crate) fn update_vpls(
             .map(|l| l.light)
             .collect();
         let vpls = generate_vpls(&snapshot, &sources, walk);
-        set.automatic_bound = automatic_bound(vpls.len(), surface_area(&snapshot));
+        set.surface_area = surface_area(&snapshot);
+        set.automatic_bound = automatic_bound(vpls.len(), set.surface_area);
         set.vpls = Arc::new(vpls);
         set.generation += 1;
         set.key = Some(key);

@@ -90,11 +90,13 @@ pub struct VplSettings {
     /// VPL spacing. Range 0 or 10⁻⁶–10⁶. Larger values clamp less (brighter splotches near VPLs, less for
     /// SSBC to return); smaller values clamp more and make SSBC search a larger radius (slower).
     pub geometry_bound: f32,
-    /// Side of each VPL's imperfect shadow map (paraboloid over its hemisphere), in texels. Range 8–128;
-    /// medium 32. Cost: memory VPLs × side² × 5.25 bytes; finer maps need more `ism_points` to fill.
+    /// Side of each VPL's imperfect shadow map (paraboloid over its hemisphere), in texels, rounded down
+    /// to a multiple of 4. Range 8–128; medium 32. Cost: memory VPLs × side² × 5.25 bytes; finer maps need more `ism_points` to fill.
     pub ism_resolution: u32,
-    /// Scene points each VPL splats into its shadow map. Range 64–65536; medium 4096. Cost: linear, once
-    /// per VPL change. Too few leave holes pull-push cannot fill (light through walls).
+    /// Scene points each VPL splats into its shadow map, each as the footprint of the surface disk it
+    /// stands for (`area / ism_points`). Range 64–65536; medium 8192. Cost: linear, once per VPL change.
+    /// Too few make coarse disks that shadow nearby surfaces too much and leave gaps where thin walls meet
+    /// (light through walls).
     pub ism_points: u32,
     /// Depth tolerance of the shadow map test, as a fraction of the distance to the VPL, on top of a
     /// slope-scaled part that grows with the receiver's tilt (see `gather.wgsl`). Range 0–1; default
@@ -136,18 +138,19 @@ impl VplSettings {
         ssbc_blur: true,
         intensity: 1.0,
     };
-    /// 160 paths (about 530 VPLs at albedo 0.7), 32² shadow maps of 4096 points, one SSBC step (the
+    /// 160 paths (about 530 VPLs at albedo 0.7), 32² shadow maps of 8192 points, one SSBC step (the
     /// default).
     pub const MEDIUM: Self = Self {
         light_paths: 160,
         ism_resolution: 32,
-        ism_points: 4096,
+        ism_points: 8192,
         ..Self::LOW
     };
-    /// 384 paths (about 1300 VPLs at albedo 0.7), 32² shadow maps of 8192 points, two SSBC steps.
+    /// 384 paths (about 1300 VPLs at albedo 0.7), 48² shadow maps of 16384 points, two SSBC steps.
     pub const HIGH: Self = Self {
         light_paths: 384,
-        ism_points: 8192,
+        ism_resolution: 48,
+        ism_points: 16384,
         ssbc_steps: 2,
         ..Self::MEDIUM
     };

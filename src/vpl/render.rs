@@ -51,6 +51,7 @@ pub struct VplUniform {
     pub geometry_bound: f32,
     pub ism_bias: f32,
     pub intensity: f32,
+    pub point_radius: f32,
 }
 
 /// `u32` words of one VPL's shadow map and its two pull-push levels.
@@ -279,6 +280,9 @@ fn prepare_vpls(
         geometry_bound: set.automatic_bound,
         ism_bias: set.settings.ism_bias,
         intensity: 1.0,
+        // Each of a shadow map's points stands for an equal share of the scene's surface: a disk of this
+        // radius.
+        point_radius: (set.surface_area / (std::f32::consts::PI * gpu.points_per_ism.max(1) as f32)).sqrt(),
     };
     gpu.uniforms.clear();
     gpu.ism_offset = gpu.uniforms.push(&base);

@@ -1,0 +1,252 @@
+//! The VPL method with screen-space bias compensation rendered on the GPU (lavapipe in CI), asserted on
+//! pixels and against the committed path-traced ground truths (`assets/ground_truth/`).
+#![cfg(feature = "gpu_tests")]
+
+mod common;
+
+use std::path::PathBuf;
+
+use bevy_diffuse_gi::camera::{GiDebugView, GiMethod};
+use bevy_diffuse_gi::hdr_image::HdrImage;
+use bevy_diffuse_gi::headless::{HeadlessMethod, HeadlessOptions};
+use bevy_diffuse_gi::metrics;
+use bevy_diffuse_gi::scenes::StandardScene;
+use bevy_diffuse_gi::vpl::VplSettings;
+use common::{Region, check, luminance, render};
+
+fn ground_truth(name: &str) -> HdrImage {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("assets/ground_truth").join(name);
+    HdrImage::read(&path).unwrap_or_else(|e| panic!("ground truth {}: {e}", path.display()))
+}
+
+fn vpl_options(scene: StandardScene, vpl: VplSettings) -> HeadlessOptions {
+    HeadlessOptions {
+        scene,
+        method: HeadlessMethod::Gi(GiMethod::Vpl),
+        indirect_only: true,
+        vpl,
+        frames: 3,
+        ..Default::default()
+    }
+}
+
+fn vpl(scene: StandardScene, vpl: VplSettings) -> HdrImage {
+    render(&vpl_options(scene, vpl)).image
+}
+
+/// Where the ceiling meets the back wall (a concave edge, unoccluded).
+const CEILING_EDGE: Region = Region::new("ceiling–back wall edge", 70, 52, 186, 59);
+/// Where the left (red) wall meets the back wall.
+const LEFT_EDGE: Region = Region::new("red wall–back wall edge", 52, 70, 60, 150);
+/// Where the small box's front stands on the floor.
+const BOX_FOOT: Region = Region::new("foot of the small box", 140, 234, 180, 240);
+/// The middle of the back wall, far from every edge.
+const BACK_WALL: Region = Region::new("middle of the back wall", 110, 90, 146, 130);
+
+#[test]
+fn compensation_adds_light_in_corners_never_removes_it_and_moves_energy_towards_the_truth() {
+    let test = "vpl_ssbc_steps";
+    let truth = ground_truth("cornell.exr");
+    let steps: Vec<HdrImage> =
+        (0..=3).map(|n| vpl(StandardScene::Cornell, VplSettings { ssbc_steps: n, ..VplSettings::MEDIUM })).collect();
+    for image in &steps {
+        check(test, !image.has_non_finite(), image, Some(&truth), "NaN or Inf in the indirect light".into());
+    }
+    let clamped = &steps[0];
+    let compensated = &steps[1];
+
+    // Never removes light: every pixel of the compensated image is at least the clamped one (the
+    // composite's filter is linear, so a non-negative compensation stays non-negative).
+    let peak = clamped.pixels.iter().map(|p| p[0].max(p[1]).max(p[2])).fold(0.0f32, f32::max);
+    let removed = clamped
+        .pixels
+        .iter()
+        .zip(&compensated.pixels)
+        .filter(|(a, b)| (0..3).any(|c| b[c] < a[c] - 1e-4 * peak))
+        .count();
+    check(test, removed == 0, compensated, Some(clamped), format!("{removed} pixels lost light to the compensation"));
+
+    // Adds light where clamping removed it: concave edges gain clearly more than a flat wall.
+    let gain = |region: Region| {
+        let (a, b) = (luminance(region.mean(test, clamped)), luminance(region.mean(test, compensated)));
+        (b - a) / a.max(1e-9)
+    };
+    let flat = gain(BACK_WALL);
+    for region in [CEILING_EDGE, LEFT_EDGE, BOX_FOOT] {
+        let g = gain(region);
+        eprintln!("{test}: {} gains {:.1} % (flat wall {:.1} %)", region.name, 100.0 * g, 100.0 * flat);
+        check(
+            test,
+            g > 0.04 && g > 2.0 * flat,
+            compensated,
+            Some(clamped),
+            format!("{}: the compensation adds {:.1} % (flat wall: {:.1} %)", region.name, 100.0 * g, 100.0 * flat),
+        );
+    }
+
+    // The energy ratio against the ground truth moves towards 1 with each step (measured on lavapipe:
+    // 0.952, 0.970, 0.971, 0.971 for 0–3 steps).
+    let energies: Vec<f64> = steps.iter().map(|i| metrics::compare(i, &truth).expect("comparable").energy_ratio).collect();
+    eprintln!("{test}: energy by SSBC steps {energies:?}");
+    for k in 1..energies.len() {
+        check(
+            test,
+            (1.0 - energies[k]).abs() <= (1.0 - energies[k - 1]).abs() + 1e-4,
+            &steps[k],
+            Some(&truth),
+            format!("step {k} moved the energy away from 1: {energies:?}"),
+        );
+    }
+    check(test, energies[1] > energies[0] + 0.005, compensated, Some(&truth), format!("no energy returned: {energies:?}"));
+}
+
+#[test]
+fn cornell_vpl_bleeds_colour_and_matches_the_ground_truth() {
+    let test = "vpl_cornell";
+    let truth = ground_truth("cornell.exr");
+    for (name, preset, block_limit, energy) in [
+        // Measured on lavapipe: medium 0.184 / 0.925, high 0.163 / 0.957 (docs/vpl_ssbc.md).
+        ("medium", VplSettings::MEDIUM, 0.21, 0.90..=0.98),
+        ("high", VplSettings::HIGH, 0.19, 0.93..=1.01),
+    ] {
+        let image = vpl(StandardScene::Cornell, preset);
+        check(test, !image.has_non_finite(), &image, Some(&truth), "NaN or Inf".into());
+        let floor = Region::new("floor by the red wall", 12, 228, 40, 246).mean(test, &image);
+        check(test, floor[0] > 3.0 * floor[1], &image, Some(&truth), format!("{name}: no red bleeding, {floor:?}"));
+        let m = metrics::compare(&image, &truth).expect("comparable images");
+        eprintln!("{test} {name}: block {:.4}, energy {:.4}", m.block_relative_rmse, m.energy_ratio);
+        check(
+            test,
+            m.block_relative_rmse <= block_limit && energy.contains(&m.energy_ratio),
+            &image,
+            Some(&truth),
+            format!(
+                "cornell, {name}: block relative RMSE {:.4} (want ≤ {block_limit}), energy {:.4} (want {energy:?})",
+                m.block_relative_rmse, m.energy_ratio
+            ),
+        );
+    }
+}
+
+#[test]
+fn cellar_vpl_keeps_the_light_in_its_room() {
+    let test = "vpl_cellar";
+    let truth = ground_truth("cellar.exr");
+    let image = vpl(StandardScene::Cellar, VplSettings::MEDIUM);
+    check(test, !image.has_non_finite(), &image, Some(&truth), "NaN or Inf".into());
+    // Room B's side of the dividing wall matches the truth (measured 0.94×). Where the wall meets the
+    // ceiling the imperfect shadow maps let some of room A's light through (measured 1.9×, a known
+    // issue of the method: docs/vpl_ssbc.md); a missing visibility test would give several times more.
+    for (region, limit) in [
+        (Region::new("dividing wall, room B side", 20, 80, 120, 140), 1.3),
+        (Region::new("top of the dividing wall", 10, 30, 120, 50), 2.2),
+    ] {
+        let (a, t) = (luminance(region.mean(test, &image)), luminance(region.mean(test, &truth)));
+        check(test, a < limit * t, &image, Some(&truth), format!("{}: {a:.3} against {t:.3}: light leaks", region.name));
+    }
+    let m = metrics::compare(&image, &truth).expect("comparable images");
+    eprintln!("{test}: block {:.4}, energy {:.4}", m.block_relative_rmse, m.energy_ratio);
+    check(
+        test,
+        m.block_relative_rmse <= CELLAR_BLOCK_LIMIT && (0.90..=1.06).contains(&m.energy_ratio),
+        &image,
+        Some(&truth),
+        format!("cellar, medium: block {:.4} (want ≤ {CELLAR_BLOCK_LIMIT}), energy {:.4}", m.block_relative_rmse, m.energy_ratio),
+    );
+}
+
+/// Measured on lavapipe: 0.427 (energy 0.988), see `docs/vpl_ssbc.md`.
+const CELLAR_BLOCK_LIMIT: f64 = 0.47;
+
+#[test]
+fn switching_the_method_at_run_time_changes_the_image_and_leaves_no_stale_light() {
+    let test = "vpl_switch_method";
+    let rh = |frames: u32| {
+        render(&HeadlessOptions {
+            method: HeadlessMethod::Gi(GiMethod::RadianceHints),
+            indirect_only: true,
+            frames,
+            ..Default::default()
+        })
+        .image
+    };
+    // Radiance Hints refines with fresh random numbers every frame, so two of its renders differ a
+    // little with their frame counts: that difference is the yardstick of "the same image".
+    let fresh_rh = rh(13);
+    let noise = metrics::compare(&rh(10), &fresh_rh).expect("comparable").block_relative_rmse;
+    let fresh_vpl = vpl(StandardScene::Cornell, VplSettings::MEDIUM);
+    // VPL for 3 frames, then Radiance Hints for the remaining 10.
+    let switched = render(&HeadlessOptions {
+        switch_method: Some((3, GiMethod::RadianceHints)),
+        frames: 13,
+        ..vpl_options(StandardScene::Cornell, VplSettings::MEDIUM)
+    })
+    .image;
+    let to_rh = metrics::compare(&switched, &fresh_rh).expect("comparable");
+    let from_vpl = metrics::compare(&fresh_vpl, &fresh_rh).expect("comparable");
+    eprintln!(
+        "{test}: switched vs fresh RH block {:.4} energy {:.4} (RH 10 vs 13 frames: {noise:.4}); VPL vs RH block {:.4}",
+        to_rh.block_relative_rmse, to_rh.energy_ratio, from_vpl.block_relative_rmse
+    );
+    check(
+        test,
+        to_rh.block_relative_rmse < 2.0 * noise + 0.01 && (0.98..=1.02).contains(&to_rh.energy_ratio),
+        &switched,
+        Some(&fresh_rh),
+        format!(
+            "after the switch the image is not Radiance Hints' own: block {:.4} (RH against itself: {noise:.4})",
+            to_rh.block_relative_rmse
+        ),
+    );
+    check(
+        test,
+        from_vpl.block_relative_rmse > 3.0 * to_rh.block_relative_rmse.max(0.005),
+        &fresh_vpl,
+        Some(&fresh_rh),
+        format!("the two methods render the same image (block {:.4})", from_vpl.block_relative_rmse),
+    );
+    // And back: Radiance Hints, then VPL.
+    let back = render(&HeadlessOptions {
+        method: HeadlessMethod::Gi(GiMethod::RadianceHints),
+        switch_method: Some((3, GiMethod::Vpl)),
+        frames: 6,
+        ..vpl_options(StandardScene::Cornell, VplSettings::MEDIUM)
+    })
+    .image;
+    let m = metrics::compare(&back, &fresh_vpl).expect("comparable");
+    eprintln!("{test}: RH then VPL vs fresh VPL block {:.4}", m.block_relative_rmse);
+    check(test, m.block_relative_rmse < 0.01, &back, Some(&fresh_vpl), format!("stale light after RH → VPL: block {:.4}", m.block_relative_rmse));
+}
+
+#[test]
+fn debug_views_show_the_parts_and_absurd_settings_stay_finite() {
+    let test = "vpl_debug_views";
+    let view = |debug_view: GiDebugView| {
+        render(&HeadlessOptions { debug_view: Some(debug_view), ..vpl_options(StandardScene::Cornell, VplSettings::LOW) }).image
+    };
+    let clamped = view(GiDebugView::VplClampedOnly);
+    let compensation = view(GiDebugView::VplCompensationOnly);
+    let full = vpl(StandardScene::Cornell, VplSettings::LOW);
+    // Clamped + compensation = the full indirect light (the composite is linear in the target).
+    let sum = clamped.pixels.iter().zip(&compensation.pixels).map(|(a, b)| luminance([a[0] + b[0], a[1] + b[1], a[2] + b[2]])).sum::<f32>();
+    let total = full.pixels.iter().map(|p| luminance([p[0], p[1], p[2]])).sum::<f32>();
+    check(test, (sum / total - 1.0).abs() < 0.01, &full, Some(&clamped), format!("clamped + compensation = {sum}, full = {total}"));
+    let positions = view(GiDebugView::VplPositions);
+    check(test, !positions.has_non_finite(), &positions, None, "NaN in the VPL view".into());
+
+    let absurd = VplSettings {
+        light_paths: 0,
+        bounces: 1000,
+        geometry_bound: f32::NAN,
+        ism_resolution: 1,
+        ism_points: 0,
+        ism_bias: f32::INFINITY,
+        ssbc_steps: 50,
+        ssbc_solid_angle: -1.0,
+        ssbc_levels: 0,
+        intensity: f32::NAN,
+        ..VplSettings::LOW
+    };
+    let image = vpl(StandardScene::Cornell, absurd);
+    check(test, !image.has_non_finite(), &image, None, "NaN or Inf with clamped settings".into());
+}
