@@ -61,6 +61,7 @@ use bevy::render::renderer::{RenderAdapter, RenderDevice};
 use bevy::render::RenderApp;
 
 pub use generate::Vpl;
+pub use render::{GpuVpl, VplUniform};
 
 /// The settings of the VPL method, on a camera with [`DiffuseGi`](crate::camera::DiffuseGi)
 /// `{ method: GiMethod::Vpl, .. }`. A camera without it uses [`VplSettings::default`] (the medium preset).
