@@ -9,6 +9,9 @@
 //! Without a display (no `DISPLAY` or `WAYLAND_DISPLAY`, as on a CI machine) it renders one frame headless
 //! on whatever Vulkan device exists and writes `out/radiance_hints.png` instead.
 
+#[path = "common/mod.rs"]
+mod common;
+
 use bevy::camera::Hdr;
 use bevy::core_pipeline::tonemapping::Tonemapping;
 use bevy::prelude::*;
@@ -29,7 +32,7 @@ fn main() -> AppExit {
         None => StandardScene::Cornell,
     };
     if std::env::var_os("DISPLAY").is_none() && std::env::var_os("WAYLAND_DISPLAY").is_none() {
-        return render_headless(scene);
+        return common::render_headless("radiance_hints", scene, GiMethod::RadianceHints);
     }
 
     App::new()
@@ -172,33 +175,4 @@ fn help_window(mut contexts: bevy_egui::EguiContexts, example: Res<Example>) -> 
         },
     );
     Ok(())
-}
-
-/// No display: one headless frame of the scene with Radiance Hints, written as a PNG.
-fn render_headless(scene: StandardScene) -> AppExit {
-    use bevy_diffuse_gi::headless::{HeadlessMethod, HeadlessOptions, run_and_write};
-    let out = std::path::PathBuf::from("out/radiance_hints.exr");
-    let options = HeadlessOptions {
-        scene,
-        method: HeadlessMethod::Gi(GiMethod::RadianceHints),
-        size: UVec2::new(512, 512),
-        out: out.clone(),
-        ..default()
-    };
-    println!("radiance_hints: no display found; rendering headless on the first Vulkan device");
-    match run_and_write(&options) {
-        Ok(report) => {
-            let png = out.with_extension("png");
-            if let Err(e) = report.image.write_png_tonemapped(&png, 1.0) {
-                eprintln!("radiance_hints: {e}");
-                return AppExit::error();
-            }
-            println!("radiance_hints: wrote {} (and {}, linear)", png.display(), out.display());
-            AppExit::Success
-        }
-        Err(message) => {
-            eprintln!("radiance_hints: {message}");
-            AppExit::error()
-        }
-    }
 }

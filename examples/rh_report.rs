@@ -15,8 +15,11 @@
 //! frame times between configurations that differ by one pass, measured alternately in `--rounds` rounds;
 //! every number is quoted with its ratio to the frame without GI measured in the same rounds.
 
+#[path = "common/mod.rs"]
+mod common;
+
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::ExitCode;
 
 use bevy::math::{UVec2, UVec3};
@@ -50,46 +53,10 @@ fn main() -> ExitCode {
     }
 }
 
-struct Args {
-    sections: Vec<String>,
-    rounds: usize,
-    docs: Option<PathBuf>,
-}
 
-fn parse() -> Result<Args, String> {
-    let mut args = Args { sections: Vec::new(), rounds: 3, docs: None };
-    let mut it = std::env::args().skip(1);
-    while let Some(flag) = it.next() {
-        let mut value = || it.next().ok_or_else(|| format!("{flag} needs a value"));
-        match flag.as_str() {
-            "--section" => {
-                let name = value()?;
-                if !SECTIONS.contains(&name.as_str()) {
-                    return Err(format!("--section: unknown section `{name}`; {USAGE}"));
-                }
-                args.sections.push(name);
-            }
-            "--rounds" => {
-                let text = value()?;
-                args.rounds = text
-                    .parse()
-                    .ok()
-                    .filter(|r| (1..=20).contains(r))
-                    .ok_or_else(|| format!("--rounds: `{text}` is not 1..=20"))?;
-            }
-            "--docs" => args.docs = Some(PathBuf::from(value()?)),
-            "--help" | "-h" => return Err(USAGE.into()),
-            other => return Err(format!("unknown flag `{other}`; {USAGE}")),
-        }
-    }
-    if args.sections.is_empty() {
-        args.sections = SECTIONS.iter().map(|s| s.to_string()).collect();
-    }
-    Ok(args)
-}
 
 fn run() -> Result<(), String> {
-    let args = parse()?;
+    let args = common::parse_report_args(SECTIONS, USAGE)?;
     if std::env::var_os("WGPU_BACKEND").is_none() {
         // SAFETY: set before any render thread exists.
         unsafe { std::env::set_var("WGPU_BACKEND", "vulkan") };
@@ -111,22 +78,12 @@ fn run() -> Result<(), String> {
             report.device, started.elapsed().as_secs_f64());
         println!("\n## {section}\n\n{table}");
         if let Some(docs) = &args.docs {
-            replace_section(docs, section, &table)?;
+            common::replace_section(docs, "rh_report", section, &table)?;
         }
     }
     Ok(())
 }
 
-/// Replaces the text between `<!-- rh_report:NAME -->` and `<!-- /rh_report:NAME -->` in `path`.
-fn replace_section(path: &Path, name: &str, body: &str) -> Result<(), String> {
-    let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
-    let (open, close) = (format!("<!-- rh_report:{name} -->"), format!("<!-- /rh_report:{name} -->"));
-    let (Some(start), Some(end)) = (text.find(&open), text.find(&close)) else {
-        return Err(format!("{}: no {open} … {close} markers", path.display()));
-    };
-    let updated = format!("{}{open}\n{body}{}", &text[..start], &text[end..]);
-    std::fs::write(path, updated).map_err(|e| format!("{}: {e}", path.display()))
-}
 
 struct Report {
     truths: BTreeMap<&'static str, HdrImage>,
@@ -145,11 +102,7 @@ impl Measured {
 
     /// Median of the last [`TIMED_FRAMES`] frame intervals, in milliseconds.
     fn frame_ms(&self) -> f64 {
-        let frames: Vec<f64> = self.report.sidecar["frame_ms"]
-            .as_array()
-            .map(|a| a.iter().filter_map(|v| v.as_f64()).collect())
-            .unwrap_or_default();
-        median(&frames[frames.len().saturating_sub(TIMED_FRAMES)..])
+        common::frame_ms(&self.report, TIMED_FRAMES)
     }
 
     /// The hint grid the volume used (`x×y×z`), fitted to the scene's proportions.
@@ -164,15 +117,6 @@ impl Measured {
     }
 }
 
-fn median(values: &[f64]) -> f64 {
-    if values.is_empty() {
-        return f64::NAN;
-    }
-    let mut v = values.to_vec();
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 { v[n / 2] } else { 0.5 * (v[n / 2 - 1] + v[n / 2]) }
-}
 
 fn rh_options(scene: StandardScene, rh: RadianceHintsVolume) -> HeadlessOptions {
     HeadlessOptions {
@@ -492,8 +436,8 @@ impl Report {
                     }
                 }
             }
-            columns.push(samples.iter().map(|(k, v)| (*k, median(v))).collect());
-            stamps.push(gpu.iter().map(|(k, v)| (*k, median(v))).collect());
+            columns.push(samples.iter().map(|(k, v)| (*k, common::median(v))).collect());
+            stamps.push(gpu.iter().map(|(k, v)| (*k, common::median(v))).collect());
         }
         let rows: [(&str, Box<dyn Fn(&BTreeMap<&str, f64>) -> f64>); 8] = [
             ("frame without GI (Bevy's deferred direct light, readback included)", Box::new(|c| c["none"])),

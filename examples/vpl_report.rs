@@ -14,8 +14,11 @@
 //! frame times between configurations that differ by one pass, measured alternately in `--rounds` rounds;
 //! every number is quoted as a ratio to the frame without GI measured in the same rounds.
 
+#[path = "common/mod.rs"]
+mod common;
+
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::ExitCode;
 
 use bevy::math::UVec2;
@@ -45,49 +48,10 @@ fn main() -> ExitCode {
     }
 }
 
-struct Args {
-    sections: Vec<String>,
-    rounds: usize,
-    docs: Option<PathBuf>,
-}
 
-fn parse() -> Result<Args, String> {
-    let mut args = Args { sections: Vec::new(), rounds: 3, docs: None };
-    let mut it = std::env::args().skip(1);
-    while let Some(flag) = it.next() {
-        let mut value = || it.next().ok_or_else(|| format!("{flag} needs a value"));
-        match flag.as_str() {
-            "--section" => {
-                let name = value()?;
-                if !SECTIONS.contains(&name.as_str()) {
-                    return Err(format!("--section: unknown section `{name}`; {USAGE}"));
-                }
-                args.sections.push(name);
-            }
-            "--rounds" => {
-                let text = value()?;
-                args.rounds = text
-                    .parse()
-                    .ok()
-                    .filter(|r| (1..=20).contains(r))
-                    .ok_or_else(|| format!("--rounds: `{text}` is not 1..=20"))?;
-            }
-            "--docs" => args.docs = Some(PathBuf::from(value()?)),
-            "--help" | "-h" => {
-                println!("{USAGE}");
-                std::process::exit(0);
-            }
-            other => return Err(format!("unknown flag `{other}`; {USAGE}")),
-        }
-    }
-    if args.sections.is_empty() {
-        args.sections = SECTIONS.iter().map(|s| s.to_string()).collect();
-    }
-    Ok(args)
-}
 
 fn run() -> Result<(), String> {
-    let args = parse()?;
+    let args = common::parse_report_args(SECTIONS, USAGE)?;
     if std::env::var_os("WGPU_BACKEND").is_none() {
         // SAFETY: set before any render thread exists.
         unsafe { std::env::set_var("WGPU_BACKEND", "vulkan") };
@@ -109,44 +73,19 @@ fn run() -> Result<(), String> {
         );
         println!("\n## {section}\n\n{table}");
         if let Some(docs) = &args.docs {
-            replace_section(docs, section, &table)?;
+            common::replace_section(docs, "vpl_report", section, &table)?;
         }
     }
     Ok(())
 }
 
-/// Replaces the text between `<!-- vpl_report:NAME -->` and `<!-- /vpl_report:NAME -->` in `path`.
-fn replace_section(path: &Path, name: &str, body: &str) -> Result<(), String> {
-    let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
-    let (open, close) = (format!("<!-- vpl_report:{name} -->"), format!("<!-- /vpl_report:{name} -->"));
-    let (Some(start), Some(end)) = (text.find(&open), text.find(&close)) else {
-        return Err(format!("{}: no {open} … {close} markers", path.display()));
-    };
-    let updated = format!("{}{open}\n{body}{}", &text[..start], &text[end..]);
-    std::fs::write(path, updated).map_err(|e| format!("{}: {e}", path.display()))
-}
 
 struct Report {
     truths: BTreeMap<&'static str, HdrImage>,
     device: String,
 }
 
-fn median(values: &[f64]) -> f64 {
-    if values.is_empty() {
-        return f64::NAN;
-    }
-    let mut v = values.to_vec();
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 { v[n / 2] } else { 0.5 * (v[n / 2 - 1] + v[n / 2]) }
-}
 
-/// Median of the last [`TIMED_FRAMES`] frame intervals of a run, in milliseconds.
-fn frame_ms(report: &HeadlessReport) -> f64 {
-    let frames: Vec<f64> =
-        report.sidecar["frame_ms"].as_array().map(|a| a.iter().filter_map(|v| v.as_f64()).collect()).unwrap_or_default();
-    median(&frames[frames.len().saturating_sub(TIMED_FRAMES)..])
-}
 
 fn vpl_options(scene: StandardScene, vpl: VplSettings) -> HeadlessOptions {
     HeadlessOptions {
@@ -180,19 +119,21 @@ fn cells(m: &ErrorMetrics) -> String {
     )
 }
 
-/// The VPL count of a run (from the sidecar's scene camera settings is not recorded; count from the
-/// generation instead).
+/// The VPL count of a run, from the same generation on the scene's CPU snapshot (the sidecar does not
+/// record it), guided by the scene's camera as the plugin guides it.
 fn vpl_count(scene: &StandardScene, settings: &VplSettings) -> usize {
-    use bevy_diffuse_gi::vpl::generate::{WalkSettings, generate_vpls};
-    let snapshot = match scene {
-        StandardScene::Cornell => bevy_diffuse_gi::scenes::cornell_snapshot(),
-        StandardScene::Cellar => bevy_diffuse_gi::scenes::cellar_snapshot(),
-        StandardScene::SponzaLike => bevy_diffuse_gi::scenes::sponza_like_snapshot(),
+    use bevy_diffuse_gi::scenes::{cellar, cornell, sponza_like};
+    use bevy_diffuse_gi::vpl::generate::{EmissionGuide, WalkSettings, generate_vpls, pilot_hits};
+    let (snapshot, camera) = match scene {
+        StandardScene::Cornell => (bevy_diffuse_gi::scenes::cornell_snapshot(), cornell::CAMERA_POSITION),
+        StandardScene::Cellar => (bevy_diffuse_gi::scenes::cellar_snapshot(), cellar::CAMERA_POSITION),
+        StandardScene::SponzaLike => (bevy_diffuse_gi::scenes::sponza_like_snapshot(), sponza_like::CAMERA_POSITION),
         StandardScene::Gltf(_) => return 0,
     };
     let lights: Vec<_> = snapshot.lights.iter().map(|l| l.light).collect();
+    let guides: Vec<_> = lights.iter().map(|l| EmissionGuide::from_pilots(&pilot_hits(&snapshot, l), &[camera])).collect();
     let s = settings.sanitized().0;
-    generate_vpls(&snapshot, &lights, WalkSettings { paths: s.light_paths, bounces: s.bounces, seed: s.seed }).len()
+    generate_vpls(&snapshot, &lights, Some(&guides), WalkSettings { paths: s.light_paths, bounces: s.bounces, seed: s.seed }).len()
 }
 
 impl Report {
@@ -324,12 +265,12 @@ impl Report {
                             ..vpl_options(StandardScene::Cornell, s.clone())
                         },
                     };
-                    times[i].push(frame_ms(&self.render(&options)?));
+                    times[i].push(common::frame_ms(&self.render(&options)?, TIMED_FRAMES));
                 }
             }
-            let base = median(&times[0]);
+            let base = common::median(&times[0]);
             for (i, (name, settings)) in configs.iter().enumerate() {
-                let t = median(&times[i]);
+                let t = common::median(&times[i]);
                 let vpls = settings.as_ref().map_or("–".to_string(), |s| vpl_count(&StandardScene::Cornell, s).to_string());
                 out += &format!("| {size}² | {name} | {vpls} | {t:.1} | {:.2} |\n", t / base);
             }
@@ -359,16 +300,16 @@ impl Report {
             for _ in 0..rounds {
                 for (i, (name, options)) in configs.iter().enumerate() {
                     let measured = self.render(options)?;
-                    times[i].push(frame_ms(&measured));
+                    times[i].push(common::frame_ms(&measured, TIMED_FRAMES));
                     if *name != "no GI" && errors[i].is_none() {
                         errors[i] = Some(self.compare(&measured.image, truth)?);
                     }
                 }
             }
-            let base = median(&times[0]);
+            let base = common::median(&times[0]);
             for (i, (name, _)) in configs.iter().enumerate().skip(1) {
                 let m = errors[i].expect("measured");
-                let t = median(&times[i]);
+                let t = common::median(&times[i]);
                 out += &format!(
                     "| {} | {name} | {:.3} | {:.3} | {t:.1} | {:.2} |\n",
                     scene.name(),

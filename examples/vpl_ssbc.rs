@@ -10,6 +10,9 @@
 //! Without a display (no `DISPLAY` or `WAYLAND_DISPLAY`, as on a CI machine) it renders one frame headless
 //! on whatever Vulkan device exists and writes `out/vpl_ssbc.png` instead.
 
+#[path = "common/mod.rs"]
+mod common;
+
 use bevy::camera::Hdr;
 use bevy::core_pipeline::tonemapping::Tonemapping;
 use bevy::prelude::*;
@@ -30,7 +33,7 @@ fn main() -> AppExit {
         None => StandardScene::Cornell,
     };
     if std::env::var_os("DISPLAY").is_none() && std::env::var_os("WAYLAND_DISPLAY").is_none() {
-        return render_headless(scene);
+        return common::render_headless("vpl_ssbc", scene, GiMethod::Vpl);
     }
 
     App::new()
@@ -181,33 +184,4 @@ fn help_window(mut contexts: bevy_egui::EguiContexts, example: Res<Example>, cam
         },
     );
     Ok(())
-}
-
-/// No display: one headless frame of the scene with the VPL method, written as a PNG.
-fn render_headless(scene: StandardScene) -> AppExit {
-    use bevy_diffuse_gi::headless::{HeadlessMethod, HeadlessOptions, run_and_write};
-    let out = std::path::PathBuf::from("out/vpl_ssbc.exr");
-    let options = HeadlessOptions {
-        scene,
-        method: HeadlessMethod::Gi(GiMethod::Vpl),
-        size: UVec2::new(512, 512),
-        out: out.clone(),
-        ..default()
-    };
-    println!("vpl_ssbc: no display found; rendering headless on the first Vulkan device");
-    match run_and_write(&options) {
-        Ok(report) => {
-            let png = out.with_extension("png");
-            if let Err(e) = report.image.write_png_tonemapped(&png, 1.0) {
-                eprintln!("vpl_ssbc: {e}");
-                return AppExit::error();
-            }
-            println!("vpl_ssbc: wrote {} (and {}, linear)", png.display(), out.display());
-            AppExit::Success
-        }
-        Err(message) => {
-            eprintln!("vpl_ssbc: {message}");
-            AppExit::error()
-        }
-    }
 }

@@ -23,6 +23,7 @@ use bevy::render::camera::ExtractedCamera;
 use bevy::render::diagnostic::RecordDiagnostics;
 use bevy::render::render_resource::binding_types::{texture_2d, texture_2d_array, texture_depth_2d, uniform_buffer};
 use bevy::render::render_resource::*;
+use bevy::render::render_phase::TrackedRenderPass;
 use bevy::render::renderer::{RenderContext, RenderDevice, RenderQueue, ViewQuery};
 use bevy::render::texture::{CachedTexture, TextureCache};
 use bevy::render::view::{ViewTarget, ViewUniform, ViewUniformOffset, ViewUniforms};
@@ -295,22 +296,7 @@ pub(crate) fn composite_gi(
     let diagnostics = diagnostics.as_deref();
     let span = diagnostics.time_span(ctx.command_encoder(), "diffuse_gi/composite");
     {
-        let mut pass = ctx.begin_tracked_render_pass(RenderPassDescriptor {
-            label: Some("diffuse_gi_composite"),
-            color_attachments: &[Some(RenderPassColorAttachment {
-                view: target.main_texture_view(),
-                depth_slice: None,
-                resolve_target: None,
-                ops: Operations {
-                    load: LoadOp::Load,
-                    store: StoreOp::Store,
-                },
-            })],
-            depth_stencil_attachment: None,
-            timestamp_writes: None,
-            occlusion_query_set: None,
-            multiview_mask: None,
-        });
+        let mut pass = begin_target_pass(&mut ctx, "diffuse_gi_composite", target.main_texture_view());
         pass.set_render_pipeline(pipeline);
         pass.set_bind_group(0, &view_group, &[view_offset.offset]);
         if let Some(group) = &rsm_group {
@@ -319,6 +305,27 @@ pub(crate) fn composite_gi(
         pass.draw(0..3, 0..1);
     }
     span.end(ctx.command_encoder());
+}
+
+/// Begins a render pass that draws into `view` over what it holds (`LoadOp::Load`), with no depth: how
+/// the methods write the frame's target and how the composite adds to the main texture.
+pub fn begin_target_pass<'a>(ctx: &'a mut RenderContext, label: &'static str, view: &TextureView) -> TrackedRenderPass<'a> {
+    ctx.begin_tracked_render_pass(RenderPassDescriptor {
+        label: Some(label),
+        color_attachments: &[Some(RenderPassColorAttachment {
+            view,
+            depth_slice: None,
+            resolve_target: None,
+            ops: Operations {
+                load: LoadOp::Load,
+                store: StoreOp::Store,
+            },
+        })],
+        depth_stencil_attachment: None,
+        timestamp_writes: None,
+        occlusion_query_set: None,
+        multiview_mask: None,
+    })
 }
 
 /// Clears the camera's indirect-light target before its method writes it, so that a method switched

@@ -217,22 +217,7 @@ pub(crate) fn reconstruct_gi(
     let diagnostics = diagnostics.as_deref();
     let span = diagnostics.time_span(ctx.command_encoder(), "diffuse_gi/rh_reconstruct");
     {
-        let mut pass = ctx.begin_tracked_render_pass(RenderPassDescriptor {
-            label: Some("diffuse_gi_rh_reconstruct"),
-            color_attachments: &[Some(RenderPassColorAttachment {
-                view: &target.texture.default_view,
-                depth_slice: None,
-                resolve_target: None,
-                ops: Operations {
-                    load: LoadOp::Load,
-                    store: StoreOp::Store,
-                },
-            })],
-            depth_stencil_attachment: None,
-            timestamp_writes: None,
-            occlusion_query_set: None,
-            multiview_mask: None,
-        });
+        let mut pass = crate::composite::begin_target_pass(&mut ctx, "diffuse_gi_rh_reconstruct", &target.texture.default_view);
         for v in &state.volumes {
             let key = RhReconstructKey {
                 sh_order: v.settings.sh_order,

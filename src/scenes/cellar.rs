@@ -11,7 +11,6 @@ use bevy::camera::Exposure;
 use bevy::prelude::*;
 
 use super::SceneCamera;
-use super::cornell::diffuse_material;
 use crate::light::GiLight;
 
 /// Wall and ceiling reflectance.
@@ -61,16 +60,7 @@ pub fn spawn_cellar(
     materials: &mut Assets<StandardMaterial>,
     ev100: f32,
 ) {
-    let palette = [WALL, FLOOR, RED, BLUE].map(|c| materials.add(diffuse_material(c)));
-    for (i, (lo, hi, material)) in cellar_boxes().into_iter().enumerate() {
-        commands.spawn((
-            Mesh3d(meshes.add(Cuboid::from_corners(lo, hi))),
-            MeshMaterial3d(palette[material].clone()),
-            // `Cuboid` is centred on the origin: place it.
-            Transform::from_translation((lo + hi) * 0.5),
-            Name::new(format!("cellar box {i}")),
-        ));
-    }
+    super::spawn_boxes(commands, meshes, materials, &cellar_boxes(), &[WALL, FLOOR, RED, BLUE], "cellar");
     let cone = 35f32.to_radians();
     commands.spawn((
         SpotLight {
@@ -102,14 +92,7 @@ pub fn spawn_cellar(
 /// The scene as a [`SceneSnapshot`](crate::scene::SceneSnapshot), built on the CPU from the same boxes,
 /// materials and light as [`spawn_cellar`].
 pub fn cellar_snapshot() -> crate::scene::SceneSnapshot {
-    use crate::scene::{SceneSnapshot, SnapshotLight, SnapshotLightEntry, extract::material_from_standard, mesh_triangles};
-    let materials = [WALL, FLOOR, RED, BLUE].map(|c| material_from_standard(&diffuse_material(c), None)).to_vec();
-    let mut triangles = Vec::new();
-    for (lo, hi, material) in cellar_boxes() {
-        let mesh = Mesh::from(Cuboid::from_corners(lo, hi));
-        let transform = GlobalTransform::from_translation((lo + hi) * 0.5);
-        triangles.extend(mesh_triangles(&mesh, &transform, material as u32).expect("CPU mesh"));
-    }
+    use crate::scene::{SnapshotLight, SnapshotLightEntry};
     let transform = GlobalTransform::from(Transform::from_translation(LIGHT_POSITION).looking_at(LIGHT_TARGET, Vec3::Y));
     let (spot_scale, spot_offset) = SnapshotLight::spot_scale_offset(35f32.to_radians() * 0.7, 35f32.to_radians());
     let light = SnapshotLightEntry {
@@ -124,5 +107,5 @@ pub fn cellar_snapshot() -> crate::scene::SceneSnapshot {
         },
         shadows_enabled: true,
     };
-    SceneSnapshot::build(triangles, materials, vec![], vec![light])
+    super::boxes_snapshot(&cellar_boxes(), &[WALL, FLOOR, RED, BLUE], vec![light])
 }

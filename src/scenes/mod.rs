@@ -83,6 +83,45 @@ impl StandardScene {
     }
 }
 
+/// Spawns `boxes` (min corner, max corner, index into `palette`) as cuboid meshes with diffuse
+/// `StandardMaterial`s of the palette's linear reflectances, named `"{name} box {i}"`.
+pub(crate) fn spawn_boxes(
+    commands: &mut Commands,
+    meshes: &mut Assets<Mesh>,
+    materials: &mut Assets<StandardMaterial>,
+    boxes: &[(Vec3, Vec3, usize)],
+    palette: &[Vec3],
+    name: &str,
+) {
+    let palette: Vec<_> = palette.iter().map(|c| materials.add(cornell::diffuse_material(*c))).collect();
+    for (i, &(lo, hi, material)) in boxes.iter().enumerate() {
+        commands.spawn((
+            Mesh3d(meshes.add(Cuboid::from_corners(lo, hi))),
+            MeshMaterial3d(palette[material].clone()),
+            // `Cuboid` is centred on the origin: place it.
+            Transform::from_translation((lo + hi) * 0.5),
+            Name::new(format!("{name} box {i}")),
+        ));
+    }
+}
+
+/// The same boxes as [`spawn_boxes`], with `lights`, as a CPU [`SceneSnapshot`](crate::scene::SceneSnapshot).
+pub(crate) fn boxes_snapshot(
+    boxes: &[(Vec3, Vec3, usize)],
+    palette: &[Vec3],
+    lights: Vec<crate::scene::SnapshotLightEntry>,
+) -> crate::scene::SceneSnapshot {
+    use crate::scene::{SceneSnapshot, extract::material_from_standard, mesh_triangles};
+    let materials = palette.iter().map(|c| material_from_standard(&cornell::diffuse_material(*c), None)).collect();
+    let mut triangles = Vec::new();
+    for &(lo, hi, material) in boxes {
+        let mesh = Mesh::from(Cuboid::from_corners(lo, hi));
+        let transform = GlobalTransform::from_translation((lo + hi) * 0.5);
+        triangles.extend(mesh_triangles(&mesh, &transform, material as u32).expect("CPU mesh"));
+    }
+    SceneSnapshot::build(triangles, materials, vec![], lights)
+}
+
 /// The camera a standard scene is seen through. The scene gives it a transform, a projection and an
 /// [`Exposure`]; the app adds its render target and settings.
 #[derive(Component, Clone, Copy, Debug, Default)]

@@ -12,7 +12,6 @@ use bevy::light::CascadeShadowConfigBuilder;
 use bevy::prelude::*;
 
 use super::SceneCamera;
-use super::cornell::diffuse_material;
 use crate::light::GiLight;
 
 /// Wall and roof reflectance (warm stone).
@@ -73,15 +72,7 @@ pub fn spawn_sponza_like(
     materials: &mut Assets<StandardMaterial>,
     ev100: f32,
 ) {
-    let palette = [WALL, FLOOR, COLUMN, BANNER].map(|c| materials.add(diffuse_material(c)));
-    for (i, (lo, hi, material)) in sponza_boxes().into_iter().enumerate() {
-        commands.spawn((
-            Mesh3d(meshes.add(Cuboid::from_corners(lo, hi))),
-            MeshMaterial3d(palette[material].clone()),
-            Transform::from_translation((lo + hi) * 0.5),
-            Name::new(format!("atrium box {i}")),
-        ));
-    }
+    super::spawn_boxes(commands, meshes, materials, &sponza_boxes(), &[WALL, FLOOR, COLUMN, BANNER], "atrium");
     commands.spawn((
         DirectionalLight {
             color: Color::WHITE,
@@ -117,14 +108,7 @@ pub fn spawn_sponza_like(
 /// The scene as a [`SceneSnapshot`](crate::scene::SceneSnapshot), built on the CPU from the same boxes,
 /// materials and sun as [`spawn_sponza_like`].
 pub fn sponza_like_snapshot() -> crate::scene::SceneSnapshot {
-    use crate::scene::{SceneSnapshot, SnapshotLight, SnapshotLightEntry, extract::material_from_standard, mesh_triangles};
-    let materials = [WALL, FLOOR, COLUMN, BANNER].map(|c| material_from_standard(&diffuse_material(c), None)).to_vec();
-    let mut triangles = Vec::new();
-    for (lo, hi, material) in sponza_boxes() {
-        let mesh = Mesh::from(Cuboid::from_corners(lo, hi));
-        let transform = GlobalTransform::from_translation((lo + hi) * 0.5);
-        triangles.extend(mesh_triangles(&mesh, &transform, material as u32).expect("CPU mesh"));
-    }
+    use crate::scene::{SnapshotLight, SnapshotLightEntry};
     let light = SnapshotLightEntry {
         entity: Entity::PLACEHOLDER,
         light: SnapshotLight::Directional {
@@ -133,7 +117,7 @@ pub fn sponza_like_snapshot() -> crate::scene::SceneSnapshot {
         },
         shadows_enabled: true,
     };
-    SceneSnapshot::build(triangles, materials, vec![], vec![light])
+    super::boxes_snapshot(&sponza_boxes(), &[WALL, FLOOR, COLUMN, BANNER], vec![light])
 }
 
 #[cfg(test)]

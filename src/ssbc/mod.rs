@@ -414,22 +414,7 @@ fn ssbc(
         }
         span.end(&mut pass);
     }
-    let mut pass = ctx.begin_tracked_render_pass(RenderPassDescriptor {
-        label: Some("diffuse_gi_ssbc_apply"),
-        color_attachments: &[Some(RenderPassColorAttachment {
-            view: &target.texture.default_view,
-            depth_slice: None,
-            resolve_target: None,
-            ops: Operations {
-                load: LoadOp::Load,
-                store: StoreOp::Store,
-            },
-        })],
-        depth_stencil_attachment: None,
-        timestamp_writes: None,
-        occlusion_query_set: None,
-        multiview_mask: None,
-    });
+    let mut pass = crate::composite::begin_target_pass(&mut ctx, "diffuse_gi_ssbc_apply", &target.texture.default_view);
     pass.set_render_pipeline(apply);
     pass.set_bind_group(0, &apply_group, &[data.offsets[0][0]]);
     pass.draw(0..3, 0..1);

@@ -7,7 +7,9 @@ use bevy::prelude::*;
 use bevy::render::Extract;
 
 use super::VplSettings;
-use super::generate::{IsmPoint, Vpl, WalkSettings, automatic_bound, generate_vpls, ism_points, surface_area};
+use super::generate::{
+    EmissionGuide, IsmPoint, PilotHits, Vpl, WalkSettings, automatic_bound, generate_vpls, ism_points, pilot_hits, surface_area,
+};
 use crate::camera::{DiffuseGi, GiDebugView, GiMethod};
 use crate::ssbc::SsbcRequest;
 use crate::light::GiLight;
@@ -37,6 +39,8 @@ pub struct VplSet {
     pub surface_area: f32,
     key: Option<VplKey>,
     points_key: Option<(u64, u32)>,
+    /// The lights' pilot rays, and what they were traced from.
+    pilots: Option<((u64, u64, Vec<Entity>), Vec<PilotHits>)>,
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -45,6 +49,9 @@ struct VplKey {
     lights: u64,
     gi_lights: Vec<Entity>,
     walk: WalkSettings,
+    /// The guides the paths were drawn from (they change when a camera crosses to another side of a
+    /// surface the lights reach, not with every camera move).
+    guides: Vec<EmissionGuide>,
 }
 
 /// Warns once per camera and field about clamped settings.
@@ -99,6 +106,7 @@ pub(crate) fn update_vpls(
     mut set: ResMut<VplSet>,
     snapshot: Option<Res<SceneSnapshot>>,
     cameras: Query<(Entity, &Camera, &DiffuseGi, Option<&VplSettings>)>,
+    viewers: Query<(&Camera, &DiffuseGi, &GlobalTransform)>,
     gi_lights: Query<Entity, With<GiLight>>,
 ) {
     let Some(settings) = first_vpl_camera(cameras.iter()) else {
@@ -116,20 +124,33 @@ pub(crate) fn update_vpls(
     let mut lights: Vec<Entity> = gi_lights.iter().collect();
     lights.sort();
     let walk = WalkSettings { paths: settings.light_paths, bounces: settings.bounces, seed: settings.seed };
+    let sources: Vec<_> =
+        snapshot.lights.iter().filter(|l| lights.binary_search(&l.entity).is_ok()).map(|l| l.light).collect();
+    // Pilot rays per light, once per light and geometry; the guides from them follow the cameras.
+    let pilot_key = (snapshot.geometry_generation, snapshot.light_generation, lights.clone());
+    if set.pilots.as_ref().is_none_or(|(k, _)| *k != pilot_key) {
+        let hits = sources.iter().map(|l| pilot_hits(&snapshot, l)).collect();
+        set.pilots = Some((pilot_key, hits));
+    }
+    let positions: Vec<Vec3> = viewers
+        .iter()
+        .filter(|(camera, gi, _)| camera.is_active && gi.enabled && gi.method == GiMethod::Vpl)
+        .map(|(.., transform)| transform.translation())
+        .collect();
+    let guides: Vec<EmissionGuide> = set
+        .pilots
+        .as_ref()
+        .map(|(_, hits)| hits.iter().map(|h| EmissionGuide::from_pilots(h, &positions)).collect())
+        .unwrap_or_default();
     let key = VplKey {
         geometry: snapshot.geometry_generation,
         lights: snapshot.light_generation,
         gi_lights: lights,
         walk,
+        guides,
     };
     if set.key.as_ref() != Some(&key) {
-        let sources: Vec<_> = snapshot
-            .lights
-            .iter()
-            .filter(|l| key.gi_lights.binary_search(&l.entity).is_ok())
-            .map(|l| l.light)
-            .collect();
-        let vpls = generate_vpls(&snapshot, &sources, walk);
+        let vpls = generate_vpls(&snapshot, &sources, Some(&key.guides), walk);
         set.surface_area = surface_area(&snapshot);
         set.automatic_bound = automatic_bound(vpls.len(), set.surface_area);
         set.vpls = Arc::new(vpls);

@@ -148,8 +148,111 @@ pub fn scene_epsilon(snapshot: &SceneSnapshot) -> f32 {
     snapshot.bounds().map_or(1e-4, |(lo, hi)| ((hi - lo).length() * 1e-4).max(1e-6))
 }
 
+/// Side of the pilot grid over each light's emission domain (see [`EmissionGuide`]).
+pub const PILOT_GRID: u32 = 32;
+/// Weight of a pilot cell whose first surface faces away from every viewer: kept above zero, so that the
+/// guided estimator stays unbiased (those paths are only made rarer and heavier).
+pub const UNSEEN_WEIGHT: f32 = 0.02;
+
+/// Where a light's paths go: the first surface its [`PILOT_GRID`]² pilot rays reach (position and the
+/// normal facing the light), traced once per light and geometry.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct PilotHits(pub Vec<Option<(Vec3, Vec3)>>);
+
+/// A 2D importance distribution over a light's emission domain `[0, 1)²`, piecewise constant over the
+/// pilot grid. Light paths are drawn from it and weighted by `1/pdf`, so any weights give an unbiased
+/// estimate; good weights put the paths where their VPLs can light what the cameras see.
+#[derive(Clone, Debug, PartialEq)]
+pub struct EmissionGuide {
+    /// Cell weights, row-major over the pilot grid.
+    pub weights: Vec<f32>,
+}
+
+impl EmissionGuide {
+    /// Weight 1 for cells whose first surface faces at least one viewer (a VPL there can light the
+    /// viewer's side of the scene), [`UNSEEN_WEIGHT`] otherwise (the outer side of a roof under the sun,
+    /// the back of a wall). Without viewers every cell weighs 1 (uniform sampling).
+    pub fn from_pilots(hits: &PilotHits, viewers: &[Vec3]) -> Self {
+        let weights = hits
+            .0
+            .iter()
+            .map(|hit| match hit {
+                _ if viewers.is_empty() => 1.0,
+                Some((p, n)) if viewers.iter().any(|v| n.dot(*v - *p) > 0.0) => 1.0,
+                _ => UNSEEN_WEIGHT,
+            })
+            .collect();
+        Self { weights }
+    }
+
+    /// The mean weight: the share of the light's power the guide keeps "useful" (1 without pilots).
+    pub fn mean(&self) -> f32 {
+        if self.weights.is_empty() {
+            return 1.0;
+        }
+        self.weights.iter().sum::<f32>() / self.weights.len() as f32
+    }
+
+    /// Maps a uniform `u` to the guided domain: the point and `1 / pdf` (1 for uniform weights).
+    fn warp(&self, u: Vec2) -> (Vec2, f32) {
+        let total: f32 = self.weights.iter().sum();
+        let n = self.weights.len();
+        if n == 0 || total <= 0.0 || self.weights.iter().all(|w| *w == self.weights[0]) {
+            return (u, 1.0);
+        }
+        let target = u.x * total;
+        let mut acc = 0.0;
+        let mut cell = n - 1;
+        for (i, w) in self.weights.iter().enumerate() {
+            if acc + w > target {
+                cell = i;
+                break;
+            }
+            acc += w;
+        }
+        let w = self.weights[cell].max(1e-12);
+        let frac = ((target - acc) / w).clamp(0.0, 0.999_999);
+        let g = PILOT_GRID as f32;
+        let (cx, cy) = ((cell as u32 % PILOT_GRID) as f32, (cell as u32 / PILOT_GRID) as f32);
+        let point = Vec2::new((cx + frac) / g, (cy + u.y) / g);
+        // pdf over [0,1)² = (w / total) · n.
+        (point, total / (w * n as f32))
+    }
+}
+
+/// The pilot rays of `light`: one through the centre of each cell of the [`PILOT_GRID`].
+///
+/// Only directional lights get them (point and spot lights return none, and are sampled uniformly): their
+/// beam is fitted to the whole scene, so most of it can land where no camera looks (the outside of a roof
+/// around a skylight), while a local light's emission stays in its surroundings, where a viewer test on
+/// the first surface would starve light that reaches the camera after more bounces.
+pub fn pilot_hits(snapshot: &SceneSnapshot, light: &SnapshotLight) -> PilotHits {
+    let Some(bounds) = snapshot.bounds() else {
+        return PilotHits::default();
+    };
+    if !matches!(light, SnapshotLight::Directional { .. }) {
+        return PilotHits::default();
+    }
+    let g = PILOT_GRID;
+    PilotHits(
+        (0..g * g)
+            .map(|i| {
+                let u = Vec2::new(((i % g) as f32 + 0.5) / g as f32, ((i / g) as f32 + 0.5) / g as f32);
+                let e = emit(light, u, 1, bounds)?;
+                let hit = snapshot.intersect(e.origin, e.direction, 0.0, f32::INFINITY)?;
+                let surface = snapshot.surface(e.origin, e.direction, &hit);
+                let n = surface.geometric_normal;
+                let n = if n.dot(e.direction) < 0.0 { n } else { -n };
+                Some((surface.position, n))
+            })
+            .collect(),
+    )
+}
+
 /// Traces `settings.paths` light paths from `lights` through `snapshot` and returns a VPL at each surface
-/// hit of every path, up to `settings.bounces` hits.
+/// hit of every path, up to `settings.bounces` hits. With `guides` (one per light), the paths are drawn
+/// from each light's [`EmissionGuide`] and split between the lights by power times the guide's mean
+/// weight; without, uniformly and by power.
 ///
 /// Paths are split between the lights by power (at least one each) and start from an Owen-scrambled
 /// Sobol sequence, so the set is stratified and the same for the same inputs. A path's first VPL has the
@@ -160,7 +263,12 @@ pub fn scene_epsilon(snapshot: &SceneSnapshot) -> f32 {
 /// emitter). Paths end by Russian roulette on the albedo (Keller 1997), so a room with albedo ρ gets
 /// about `1/(1 − ρ)` VPLs per path and every bounce order up to `bounces` without bias: the sum over
 /// bounce-`k` VPLs estimates the flux reflected by the `k`-th surfaces light reaches.
-pub fn generate_vpls(snapshot: &SceneSnapshot, lights: &[SnapshotLight], settings: WalkSettings) -> Vec<Vpl> {
+pub fn generate_vpls(
+    snapshot: &SceneSnapshot,
+    lights: &[SnapshotLight],
+    guides: Option<&[EmissionGuide]>,
+    settings: WalkSettings,
+) -> Vec<Vpl> {
     let Some(bounds) = snapshot.bounds() else {
         return Vec::new();
     };
@@ -170,7 +278,12 @@ pub fn generate_vpls(snapshot: &SceneSnapshot, lights: &[SnapshotLight], setting
     let epsilon = scene_epsilon(snapshot);
     let extent = bounds.1 - bounds.0;
     let across = extent.x * extent.z + extent.x * extent.y + extent.y * extent.z;
-    let powers: Vec<f32> = lights.iter().map(|l| light_power(l, across).max(0.0)).collect();
+    let guide = |i: usize| guides.and_then(|g| g.get(i));
+    let powers: Vec<f32> = lights
+        .iter()
+        .enumerate()
+        .map(|(i, l)| light_power(l, across).max(0.0) * guide(i).map_or(1.0, EmissionGuide::mean))
+        .collect();
     let total: f32 = powers.iter().sum::<f32>().max(1e-20);
     let mut vpls = Vec::with_capacity((settings.paths * settings.bounces) as usize);
     let mut assigned = 0u32;
@@ -186,9 +299,11 @@ pub fn generate_vpls(snapshot: &SceneSnapshot, lights: &[SnapshotLight], setting
         let stream = SobolStream::new(settings.seed as u64, index as u64);
         for i in 0..count {
             let u = stream.vertex_4d(i, 0);
-            let Some(emission) = emit(light, Vec2::new(u[0], u[1]), count, bounds) else {
+            let (u, weight) = guide(index).map_or((Vec2::new(u[0], u[1]), 1.0), |g| g.warp(Vec2::new(u[0], u[1])));
+            let Some(mut emission) = emit(light, u, count, bounds) else {
                 continue;
             };
+            emission.flux *= weight;
             walk(snapshot, light, emission, &stream, i, settings.bounces, epsilon, &mut vpls);
         }
     }
@@ -361,7 +476,7 @@ mod tests {
             spot_scale: scale,
             spot_offset: offset,
         };
-        let vpls = generate_vpls(&snap, &[spot], WalkSettings { paths: 1024, bounces: 1, seed: 3 });
+        let vpls = generate_vpls(&snap, &[spot], None, WalkSettings { paths: 1024, bounces: 1, seed: 3 });
         assert_eq!(vpls.len(), 1024);
         let total: Vec3 = vpls.iter().map(|v| v.flux).sum();
         // Hard cone (inner = outer): Φ = I · 2π(1 − cos 0.5).
@@ -371,7 +486,7 @@ mod tests {
         }
         assert!(vpls.iter().all(|v| v.bounce == 1 && v.normal.y > 0.99 && v.position.y > 0.0));
         // Stable: the same inputs give the same VPLs.
-        assert_eq!(vpls, generate_vpls(&snap, &[spot], WalkSettings { paths: 1024, bounces: 1, seed: 3 }));
+        assert_eq!(vpls, generate_vpls(&snap, &[spot], None, WalkSettings { paths: 1024, bounces: 1, seed: 3 }));
     }
 
     /// White furnace: inside a closed box of albedo ρ no light escapes, so the flux reflected by the k-th
@@ -385,7 +500,7 @@ mod tests {
         let intensity = Vec3::splat(10.0);
         let point = SnapshotLight::Point { position: Vec3::new(0.1, 0.2, -0.1), intensity, inverse_range_squared: 0.0 };
         let bounces = 4;
-        let vpls = generate_vpls(&snap, &[point], WalkSettings { paths: 4096, bounces, seed: 1 });
+        let vpls = generate_vpls(&snap, &[point], None, WalkSettings { paths: 4096, bounces, seed: 1 });
         let emitted = intensity.x * 4.0 * PI;
         for k in 1..=bounces {
             let flux: f32 = vpls.iter().filter(|v| v.bounce == k).map(|v| v.flux.x).sum();
@@ -408,11 +523,37 @@ mod tests {
         .to_vec();
         let snap = snapshot(floor, 0.5);
         let sun = SnapshotLight::Directional { direction: Vec3::NEG_Y, illuminance: Vec3::splat(1000.0) };
-        let vpls = generate_vpls(&snap, &[sun], WalkSettings { paths: 4096, bounces: 1, seed: 0 });
+        let vpls = generate_vpls(&snap, &[sun], None, WalkSettings { paths: 4096, bounces: 1, seed: 0 });
         let total: f32 = vpls.iter().map(|v| v.flux.x).sum();
         // 16 m² of floor at 1000 lx, albedo 0.5; the beam rectangle has a 0.1 % margin: within 1 %.
         assert!(close(total, 8000.0, 0.01), "{total}");
     }
+
+    /// The sun over the atrium: most of its beam lands on the outside of the roof. Guided by a viewer
+    /// inside, the paths go through the opening instead, and the flux that enters stays the same.
+    #[test]
+    fn guided_paths_go_where_the_viewer_is_and_keep_the_flux() {
+        let snap = crate::scenes::sponza_like_snapshot();
+        let sun = snap.lights[0].light;
+        let inside = |v: &Vpl| v.position.y < 5.99 && v.position.x.abs() < 6.0 && v.position.z.abs() < 4.0;
+        let settings = WalkSettings { paths: 2048, bounces: 1, seed: 2 };
+        let uniform = generate_vpls(&snap, &[sun], None, settings);
+        let guide = EmissionGuide::from_pilots(&pilot_hits(&snap, &sun), &[crate::scenes::sponza_like::CAMERA_POSITION]);
+        let guided = generate_vpls(&snap, &[sun], Some(&[guide]), settings);
+        let share = |v: &[Vpl]| v.iter().filter(|v| inside(v)).count() as f32 / v.len() as f32;
+        let flux_in = |v: &[Vpl]| v.iter().filter(|v| inside(v)).map(|v| v.flux.x).sum::<f32>();
+        assert!(share(&uniform) < 0.2, "uniform: {}", share(&uniform));
+        assert!(share(&guided) > 0.6, "guided: {}", share(&guided));
+        // Same expected flux through the opening (Monte Carlo noise of the uniform estimate: ~10 %).
+        let (a, b) = (flux_in(&uniform), flux_in(&guided));
+        assert!(close(b, a, 0.1), "{b} vs {a}");
+        // The flux that enters is E⊥ × the opening's area across the beam, reflected by the floor (albedo
+        // 0.45) and a column (0.8) it lands on: between the two albedos.
+        let entering = crate::scenes::sponza_like::SUN_LUX * 12.0 * (-SUN.normalize().y);
+        assert!(b > 0.45 * entering * 0.97 && b < 0.8 * entering, "{b} vs {entering}");
+    }
+
+    const SUN: Vec3 = crate::scenes::sponza_like::SUN_DIRECTION;
 
     #[test]
     fn ism_points_are_spread_by_area_and_every_run_covers_the_scene() {

@@ -33,10 +33,24 @@
 //!    the visible surfaces (Bevy's direct light plus the clamped indirect light, then each step's result),
 //!    over a mip chain of the G-buffer, inside the bounding radius `r = 1/√b` (§4.1–4.3).
 //!
-//! # Where this departs from the paper, and why
+//! # Where this departs from the papers, and why
+//! Each change was measured against the path-traced ground truth (`docs/vpl_ssbc.md`):
+//! * The VPLs come from light paths traced on the CPU through the snapshot's BVH, the first hit included,
+//!   rather than from sampling the GPU reflective shadow maps: the first hit of a path through a texel of
+//!   a light's RSM *is* that texel's surface, with the same reflected flux, so the estimator is the same;
+//!   reading the RSMs back would add a frame of latency, and the walks need the BVH anyway.
+//! * Paths end by Russian roulette on the albedo (Keller 1997) instead of at a fixed depth: two fixed
+//!   bounces left `cornell` at 0.75 of its energy.
+//! * Directional lights draw their paths from a pilot grid that prefers surfaces facing a camera
+//!   ([`generate::EmissionGuide`]; unbiased): a sun fitted to the whole scene otherwise spends most paths
+//!   on the outside of a roof.
 //! * The bound `b` defaults to the VPL density `N / A` over the scene's surfaces
 //!   ([`generate::automatic_bound`]), so the bounding radius is the mean VPL spacing at any scene scale;
 //!   a fixed number in 1/m² would be right for one room size only.
+//! * Shadow-map points are splatted as the disk of surface each stands for, not as single texels, and
+//!   the depth test has a slope-scaled tolerance plus that disk's radius: single texels let a room's light
+//!   through a 20 cm wall (`cellar` block RMSE 1.05 instead of 0.43), and without the slope term surfaces
+//!   shadowed themselves (11 % of `cornell`'s one-bounce energy).
 //! * Bevy's rasteriser draws the direct light, and SSBC reads it from the view's main texture after the
 //!   opaque pass (with the emission and ambient light Bevy adds there).
 //!
@@ -45,11 +59,23 @@
 //! A still scene reuses its VPLs and shadow maps; per frame only the gather (`O(pixels × VPLs)`) and SSBC
 //! (`O(pixels × samples × steps)`) run per view.
 //!
+//! # Measured (lavapipe, 256², `docs/vpl_ssbc.md`)
+//! | scene | medium: block RMSE / energy | high | still frame, medium |
+//! |---|---|---|---|
+//! | `cornell` | 0.184 / 0.925 | 0.148 / 0.976 | 9.0 × the frame without GI (3.5 × at half resolution) |
+//! | `cellar` | 0.427 / 0.988 | 0.383 / 1.038 | |
+//!
+//! Per pass at 256² (differences of frame times): the gather about 0.3 ms per VPL, each SSBC step about
+//! 90 ms, the shadow maps only when the VPLs change. No GPU was available: these are CPU-rasteriser times.
+//!
 //! # Known issues
 //! * Screen space sees only what the camera sees: SSBC cannot return the energy clamped near surfaces
 //!   that are off screen or hidden (§4.3).
-//! * Imperfect shadow maps are coarse: thin occluders (below about 1/`ism_resolution` of the distance) are
-//!   missed, so light leaks through thin walls near a VPL.
+//! * Imperfect shadow maps are coarse both ways: too much shadow next to contacts and concave edges (the
+//!   largest error left on `cornell`), and light through thin walls where they meet another surface
+//!   (`cellar`'s wall–ceiling junction at 1.9 × the truth with the medium preset).
+//! * Any change of a GI light or of the geometry regenerates every VPL and every shadow map (the walks are
+//!   cheap; the splats cost VPLs × `ism_points`); a moving mesh also rebuilds the snapshot.
 //! * Emissive surfaces emit no VPLs (only `GiLight`s do).
 
 pub mod generate;

@@ -406,22 +406,7 @@ fn gather_vpls(
     let diagnostics = diagnostics.as_deref();
     let span = diagnostics.time_span(ctx.command_encoder(), "diffuse_gi/vpl_gather");
     {
-        let mut pass = ctx.begin_tracked_render_pass(RenderPassDescriptor {
-            label: Some("diffuse_gi_vpl_gather"),
-            color_attachments: &[Some(RenderPassColorAttachment {
-                view: &target.texture.default_view,
-                depth_slice: None,
-                resolve_target: None,
-                ops: Operations {
-                    load: LoadOp::Load,
-                    store: StoreOp::Store,
-                },
-            })],
-            depth_stencil_attachment: None,
-            timestamp_writes: None,
-            occlusion_query_set: None,
-            multiview_mask: None,
-        });
+        let mut pass = crate::composite::begin_target_pass(&mut ctx, "diffuse_gi_vpl_gather", &target.texture.default_view);
         pass.set_render_pipeline(pipeline);
         pass.set_bind_group(0, &view_group, &[view_offset.offset]);
         pass.set_bind_group(1, &gather_group, &[offset]);
