@@ -194,7 +194,7 @@ impl Report {
         let one = VplSettings { bounces: 1, ..medium.clone() };
         for (name, settings) in [
             ("1 bounce, clamped only", VplSettings { ssbc_steps: 0, ..one.clone() }),
-            ("1 bounce, unclamped (b = 10⁶), clamped-only SSBC off", VplSettings { ssbc_steps: 0, geometry_bound: 1e6, ..one.clone() }),
+            ("1 bounce, unclamped (b = 10⁶), no SSBC", VplSettings { ssbc_steps: 0, geometry_bound: 1e6, ..one.clone() }),
             ("1 bounce, 1 SSBC step", one.clone()),
         ] {
             let measured = self.render(&vpl_options(StandardScene::Cornell, settings.clone()))?;

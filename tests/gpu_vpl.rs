@@ -155,49 +155,78 @@ fn cellar_vpl_keeps_the_light_in_its_room() {
     );
 }
 
+#[test]
+fn sponza_like_vpl_lights_the_atrium_from_the_sun_patch() {
+    let test = "vpl_sponza_like";
+    let truth = ground_truth("sponza_like.exr");
+    let image = vpl(StandardScene::SponzaLike, VplSettings::MEDIUM);
+    check(test, !image.has_non_finite(), &image, Some(&truth), "NaN or Inf".into());
+    // The far wall, lit only by light that bounced off the sun patch and the walls.
+    let wall = Region::new("far wall", 100, 60, 150, 100);
+    let (a, t) = (luminance(wall.mean(test, &image)), luminance(wall.mean(test, &truth)));
+    check(test, (0.6..1.5).contains(&(a / t)), &image, Some(&truth), format!("far wall: {a:.3} against {t:.3}"));
+    // Measured on lavapipe: block 0.289, energy 0.915, 5.2 % of blocks more than 50 % off.
+    let m = metrics::compare(&image, &truth).expect("comparable images");
+    eprintln!("{test}: block {:.4}, energy {:.4}, off {:.3}", m.block_relative_rmse, m.energy_ratio, m.blocks_over_half_off);
+    check(
+        test,
+        m.block_relative_rmse <= 0.33 && (0.86..=0.97).contains(&m.energy_ratio) && m.blocks_over_half_off <= 0.08,
+        &image,
+        Some(&truth),
+        format!(
+            "sponza_like, medium: block {:.4} (want ≤ 0.33), energy {:.4} (want 0.86–0.97), {:.1} % of blocks off (want ≤ 8 %)",
+            m.block_relative_rmse,
+            m.energy_ratio,
+            100.0 * m.blocks_over_half_off
+        ),
+    );
+}
+
 /// Measured on lavapipe: 0.427 (energy 0.988), see `docs/vpl_ssbc.md`.
 const CELLAR_BLOCK_LIMIT: f64 = 0.47;
 
 #[test]
 fn switching_the_method_at_run_time_changes_the_image_and_leaves_no_stale_light() {
     let test = "vpl_switch_method";
-    let rh = |frames: u32| {
-        render(&HeadlessOptions {
-            method: HeadlessMethod::Gi(GiMethod::RadianceHints),
-            indirect_only: true,
-            frames,
-            ..Default::default()
-        })
-        .image
-    };
-    // Radiance Hints refines with fresh random numbers every frame, so two of its renders differ a
-    // little with their frame counts: that difference is the yardstick of "the same image".
-    let fresh_rh = rh(13);
-    let noise = metrics::compare(&rh(10), &fresh_rh).expect("comparable").block_relative_rmse;
+    let fresh_rh = render(&HeadlessOptions {
+        method: HeadlessMethod::Gi(GiMethod::RadianceHints),
+        indirect_only: true,
+        frames: 24,
+        ..Default::default()
+    })
+    .image;
     let fresh_vpl = vpl(StandardScene::Cornell, VplSettings::MEDIUM);
-    // VPL for 3 frames, then Radiance Hints for the remaining 10.
+    // VPL for a few frames, then Radiance Hints for 24 (past its 17 refinement updates).
     let switched = render(&HeadlessOptions {
         switch_method: Some((3, GiMethod::RadianceHints)),
-        frames: 13,
+        frames: 27,
         ..vpl_options(StandardScene::Cornell, VplSettings::MEDIUM)
     })
     .image;
     let to_rh = metrics::compare(&switched, &fresh_rh).expect("comparable");
     let from_vpl = metrics::compare(&fresh_vpl, &fresh_rh).expect("comparable");
     eprintln!(
-        "{test}: switched vs fresh RH block {:.4} energy {:.4} (RH 10 vs 13 frames: {noise:.4}); VPL vs RH block {:.4}",
+        "{test}: switched vs fresh RH block {:.4} energy {:.4}; VPL vs RH block {:.4}",
         to_rh.block_relative_rmse, to_rh.energy_ratio, from_vpl.block_relative_rmse
     );
+    // Radiance Hints draws fresh random numbers every frame it updates, so two of its renders whose
+    // updates fall on other frames differ by its own noise (measured 0.02–0.09 block RMSE on cornell,
+    // blotches on the floor), far below the 0.24 between the methods. Light left behind by the VPL method
+    // would show in the energy and at the concave edges, where its compensation adds light.
     check(
         test,
-        to_rh.block_relative_rmse < 2.0 * noise + 0.01 && (0.98..=1.02).contains(&to_rh.energy_ratio),
+        to_rh.block_relative_rmse < 0.1 && (0.98..=1.02).contains(&to_rh.energy_ratio),
         &switched,
         Some(&fresh_rh),
         format!(
-            "after the switch the image is not Radiance Hints' own: block {:.4} (RH against itself: {noise:.4})",
-            to_rh.block_relative_rmse
+            "after the switch the image is not Radiance Hints' own: block {:.4}, energy {:.4}",
+            to_rh.block_relative_rmse, to_rh.energy_ratio
         ),
     );
+    for region in [CEILING_EDGE, LEFT_EDGE] {
+        let (a, b) = (luminance(region.mean(test, &switched)), luminance(region.mean(test, &fresh_rh)));
+        check(test, (a / b - 1.0).abs() < 0.04, &switched, Some(&fresh_rh), format!("{}: {a:.4} after the switch, {b:.4} fresh", region.name));
+    }
     check(
         test,
         from_vpl.block_relative_rmse > 3.0 * to_rh.block_relative_rmse.max(0.005),

@@ -166,10 +166,11 @@ pub(crate) fn update_vpls(
         // New points: the shadow maps must be splatted again.
         set.generation += 1;
     }
-    if set.settings != settings {
-        set.settings = settings;
+    // Only the shadow maps' size is baked into the set; gather and SSBC fields are per view.
+    if set.settings.ism_resolution != settings.ism_resolution {
         set.generation += 1;
     }
+    set.settings = settings;
 }
 
 /// The VPL set in the render world (the `Arc`s are shared, not copied).
