@@ -514,6 +514,45 @@ mod tests {
         assert!(close(second, 4096.0 * rho, 0.02), "{second}");
     }
 
+    /// The same furnace-like closed box seen by the path tracer: at a point inside, the irradiance of the
+    /// light reflected once (the tracer's "direct" incident radiance) and twice ("indirect" with one extra
+    /// bounce) equals what the bounce-1 and bounce-2 VPLs deliver there, `Σ Φ/π · G`.
+    #[cfg(feature = "reference")]
+    #[test]
+    fn random_walks_agree_with_the_path_tracer_bounce_by_bounce() {
+        use crate::reference::{ReferenceSettings, incident_radiance};
+        use crate::scene::SnapshotLightEntry;
+        use crate::ssbc::geometry_term;
+        let rho = 0.7;
+        let point = SnapshotLight::Point { position: Vec3::new(0.1, 0.2, -0.1), intensity: Vec3::splat(10.0), inverse_range_squared: 0.0 };
+        let light = SnapshotLightEntry { entity: bevy::prelude::Entity::PLACEHOLDER, light: point, shadows_enabled: true };
+        let snap = SceneSnapshot::build(closed_box(1.0), vec![material(rho)], vec![], vec![light]);
+        let (p, n) = (Vec3::new(0.2, -0.3, 0.1), Vec3::Y);
+        // The tracer: E = π · mean of the incident radiance over cosine-distributed directions.
+        let mut rng = crate::sampling::rng_for(5, 0);
+        let directions: Vec<Vec3> = (0..4096).map(|_| cosine_hemisphere(n, crate::sampling::uniform2(&mut rng))).collect();
+        let traced = |max_bounces: Option<u32>, part: usize| {
+            let settings = ReferenceSettings { max_bounces, ..Default::default() };
+            let sum: f32 = directions
+                .iter()
+                .enumerate()
+                .map(|(i, d)| incident_radiance(&snap, p, *d, &settings, 4, i as u64)[part].x)
+                .sum();
+            PI * sum / directions.len() as f32
+        };
+        let (once, twice) = (traced(None, 1), traced(Some(1), 2));
+        let vpls = generate_vpls(&snap, &[point], None, WalkSettings { paths: 4096, bounces: 2, seed: 9 });
+        let gathered = |k: u32| -> f32 {
+            vpls.iter().filter(|v| v.bounce == k).map(|v| v.flux.x / PI * geometry_term(p, n, v.position, v.normal)).sum()
+        };
+        let (e1, e2) = (gathered(1), gathered(2));
+        eprintln!("reflected once: VPLs {e1}, tracer {once}; twice: VPLs {e2}, tracer {twice}");
+        // ρ² of the light is left after two reflections: the second is about ρ times the first.
+        assert!(once > 1.0 && twice > 0.4 * once && twice < once, "{once} {twice}");
+        assert!(close(e1, once, 0.05), "light reflected once: VPLs {e1}, tracer {once}");
+        assert!(close(e2, twice, 0.06), "light reflected twice: VPLs {e2}, tracer {twice}");
+    }
+
     #[test]
     fn directional_light_paths_cover_the_beam_and_hit_the_floor_at_its_illuminance() {
         let floor = quad(
