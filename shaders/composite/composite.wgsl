@@ -12,6 +12,7 @@
 #import bevy_render::view::View
 #import bevy_pbr::pbr_deferred_types::{unpack_24bit_normal, unpack_unorm4x8_, unpack_flags, DEFERRED_FLAGS_UNLIT_BIT}
 #import bevy_pbr::utils::octahedral_decode
+#import bevy_diffuse_gi::gi_frame::target_pixel
 
 @group(0) @binding(0) var<uniform> view: View;
 @group(0) @binding(1) var depth_texture: texture_depth_2d;
@@ -67,7 +68,7 @@ fn gi_at(pixel: vec2<i32>, n: vec3<f32>, depth: f32) -> vec3<f32> {
     for (var i = 0; i < taps * taps; i++) {
         let o = vec2(i % taps, i / taps);
         let q = clamp(base + o, vec2(0), low_size - 1);
-        let source = min(q * GI_SCALE, full_size - 1);
+        let source = target_pixel(q, GI_SCALE, full_size);
         let d = textureLoad(depth_texture, source, 0);
         if d <= 0.0 {
             continue;

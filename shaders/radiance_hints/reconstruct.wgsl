@@ -17,6 +17,7 @@
 #import bevy_diffuse_gi::rh_types::{PI, world_to_local, local_to_occupancy, sh_irradiance, cell_index}
 #import bevy_diffuse_gi::rh_sampling::{volume, trilinear, sh_at, load_sh}
 #import bevy_diffuse_gi::rh_occupancy::first_hit_inclusive
+#import bevy_diffuse_gi::gi_frame::{target_pixel, world_at}
 
 @group(0) @binding(0) var<uniform> view: View;
 @group(0) @binding(1) var depth_texture: texture_depth_2d;
@@ -38,15 +39,12 @@ fn basis(n: vec3<f32>) -> mat3x3<f32> {
 @fragment
 fn reconstruct(in: FullscreenVertexOutput) -> @location(0) vec4<f32> {
     let size = vec2<i32>(textureDimensions(depth_texture));
-    let pixel = min(vec2<i32>(floor(in.position.xy)) * GI_SCALE, size - 1);
+    let pixel = target_pixel(vec2<i32>(floor(in.position.xy)), GI_SCALE, size);
     let depth = textureLoad(depth_texture, pixel, 0);
     if depth <= 0.0 {
         discard;
     }
-    let uv = (vec2<f32>(pixel) + 0.5) / vec2<f32>(size);
-    let clip = vec4(uv.x * 2.0 - 1.0, 1.0 - uv.y * 2.0, depth, 1.0);
-    let world_h = view.world_from_clip * clip;
-    let world = world_h.xyz / world_h.w;
+    let world = world_at(view.world_from_clip, pixel, size, depth);
 
     let local = world_to_local(volume, world);
     let inside_cells = (0.5 - abs(local)) * vec3<f32>(volume.resolution.xyz);

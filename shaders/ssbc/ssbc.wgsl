@@ -20,6 +20,7 @@
 #import bevy_render::view::View
 #import bevy_pbr::pbr_deferred_types::{unpack_24bit_normal, unpack_unorm4x8_, unpack_flags, DEFERRED_FLAGS_UNLIT_BIT}
 #import bevy_pbr::utils::octahedral_decode
+#import bevy_diffuse_gi::gi_frame::{target_pixel, world_at}
 #ifdef APPLY
 #import bevy_core_pipeline::fullscreen_vertex_shader::FullscreenVertexOutput
 #endif
@@ -102,7 +103,7 @@ fn gbuffer_level(@builtin(global_invocation_id) id: vec3<u32>) {
     }
     let index = id.y * u.size.x + id.x;
     let full = vec2<i32>(textureDimensions(depth_texture));
-    let pixel = min(vec2<i32>(id.xy) * i32(u.scale), full - 1);
+    let pixel = target_pixel(vec2<i32>(id.xy), i32(u.scale), full);
     let depth = textureLoad(depth_texture, pixel, 0);
     let g = textureLoad(gbuffer, pixel, 0);
     let unlit = (unpack_flags(g.a) & DEFERRED_FLAGS_UNLIT_BIT) != 0u;
@@ -112,9 +113,7 @@ fn gbuffer_level(@builtin(global_invocation_id) id: vec3<u32>) {
         albedo[index] = vec4(0.0);
         return;
     }
-    let uv = (vec2<f32>(pixel) + 0.5) / vec2<f32>(full);
-    let world_h = view.world_from_clip * vec4(uv.x * 2.0 - 1.0, 1.0 - uv.y * 2.0, depth, 1.0);
-    let p = world_h.xyz / world_h.w;
+    let p = world_at(view.world_from_clip, pixel, full, depth);
     let n = octahedral_decode(unpack_24bit_normal(g.a));
     let base_color = pow(unpack_unorm4x8_(g.r).rgb, vec3(2.2));
     let metallic = unpack_unorm4x8_(g.b).g;
@@ -215,7 +214,7 @@ fn illuminate(@builtin(global_invocation_id) id: vec3<u32>) {
         // The clamped solution: Bevy's direct light (radiance × exposure in the main texture) and the
         // clamped VPL light (E_b/π per unit albedo in the target, scaled by the intensity).
         let full = vec2<i32>(textureDimensions(main_texture));
-        let pixel = min(vec2<i32>(id.xy) * i32(u.scale), full - 1);
+        let pixel = target_pixel(vec2<i32>(id.xy), i32(u.scale), full);
         let direct = textureLoad(main_texture, pixel, 0).rgb / max(view.exposure, 1e-30);
         let t = textureLoad(gi_texture, vec2<i32>(id.xy), 0);
         let indirect = t.rgb / max(t.a, 1.0) / max(u.intensity, 1e-20);

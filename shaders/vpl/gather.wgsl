@@ -10,6 +10,7 @@
 #import bevy_pbr::pbr_deferred_types::unpack_24bit_normal
 #import bevy_pbr::utils::octahedral_decode
 #import bevy_diffuse_gi::vpl_types::{PI, Vpl, VplUniform, to_local, paraboloid_coords, ism_index}
+#import bevy_diffuse_gi::gi_frame::{target_pixel, world_at}
 
 @group(0) @binding(0) var<uniform> view: View;
 @group(0) @binding(1) var depth_texture: texture_depth_2d;
@@ -53,14 +54,12 @@ fn visibility(i: u32, local: vec3<f32>, d: f32, cos_x: f32) -> f32 {
 @fragment
 fn gather(in: FullscreenVertexOutput) -> @location(0) vec4<f32> {
     let size = vec2<i32>(textureDimensions(depth_texture));
-    let pixel = min(vec2<i32>(floor(in.position.xy)) * GI_SCALE, size - 1);
+    let pixel = target_pixel(vec2<i32>(floor(in.position.xy)), GI_SCALE, size);
     let depth = textureLoad(depth_texture, pixel, 0);
     if depth <= 0.0 {
         discard;
     }
-    let uv = (vec2<f32>(pixel) + 0.5) / vec2<f32>(size);
-    let world_h = view.world_from_clip * vec4(uv.x * 2.0 - 1.0, 1.0 - uv.y * 2.0, depth, 1.0);
-    let x = world_h.xyz / world_h.w;
+    let x = world_at(view.world_from_clip, pixel, size, depth);
     let n = octahedral_decode(unpack_24bit_normal(textureLoad(gbuffer, pixel, 0).a));
 
     var e = vec3(0.0);

@@ -104,9 +104,10 @@ pub struct CompositePipelines {
     rsm_debug: UniformBuffer<RsmDebugUniform>,
 }
 
-/// The composite shader, kept alive by this resource.
+/// The composite shader and the `gi_frame` import library the methods' passes use, kept alive by this
+/// resource.
 #[derive(Resource, Clone)]
-pub struct CompositeShader(pub Handle<Shader>);
+pub struct CompositeShader(pub Handle<Shader>, pub Handle<Shader>);
 
 impl FromWorld for CompositePipelines {
     fn from_world(world: &mut World) -> Self {
@@ -387,11 +388,12 @@ impl Plugin for CompositePlugin {
             "composite/composite.wgsl",
             include_str!("../../shaders/composite/composite.wgsl"),
         );
+        let library = crate::add_shader(app, "composite/gi_frame.wgsl", include_str!("../../shaders/composite/gi_frame.wgsl"));
         let Some(render_app) = app.get_sub_app_mut(RenderApp) else {
             return;
         };
         render_app
-            .insert_resource(CompositeShader(shader))
+            .insert_resource(CompositeShader(shader, library))
             .init_resource::<SpecializedRenderPipelines<CompositePipelines>>()
             .add_systems(RenderStartup, init_composite_pipelines)
             .add_systems(ExtractSchedule, extract_cameras)
