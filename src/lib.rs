@@ -10,7 +10,8 @@
 //! App::new()
 //!     .add_plugins((DefaultPlugins, DiffuseGiPlugin::default()))
 //!     .add_systems(Startup, |mut commands: Commands| {
-//!         // Per camera: the method and the debug view.
+//!         // Per camera: the method and the debug view (Radiance Hints by default; or
+//!         // `DiffuseGi { method: GiMethod::Vpl, .. }`, which needs no volume).
 //!         commands.spawn((Camera3d::default(), DiffuseGi::default()));
 //!         // Per light: its light bounces.
 //!         commands.spawn((SpotLight { shadow_maps_enabled: true, ..default() }, GiLight::default()));
