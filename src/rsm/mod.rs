@@ -267,8 +267,10 @@ fn cube_faces(
     (faces, omega)
 }
 
-/// What a light's faces are rendered from: geometry generation, atlas generation, face uniforms.
-pub type RsmSlotKey = (u64, u64, Vec<RsmFaceUniform>);
+/// What a light's faces are rendered from: geometry generation, atlas generation, face uniforms, and the
+/// bits of the flux scale (the faces store the light's colour normalised by its largest channel, so an
+/// intensity change alone shows only there).
+pub type RsmSlotKey = (u64, u64, Vec<RsmFaceUniform>, u32);
 
 /// Where one light's faces live in the atlas and what they were last drawn from.
 #[derive(Clone, Debug, PartialEq)]
@@ -533,7 +535,7 @@ pub(crate) fn prepare_rsm(
             .iter()
             .find(|s| s.entity == entity && s.first_layer == first_layer && s.resolution == resolution)
             .and_then(|s| s.drawn.clone());
-        let current = (atlas.geometry_generation, atlas.generation, light_faces.faces.clone());
+        let current = (atlas.geometry_generation, atlas.generation, light_faces.faces.clone(), light_faces.flux_scale.to_bits());
         let dirty = drawn.as_ref() != Some(&current);
         for (i, face) in light_faces.faces.iter().enumerate() {
             let offset = atlas.face_uniforms.push(face);
@@ -693,6 +695,25 @@ mod tests {
         let omega = (2.0 * 0.5f32.tan() / 256.0).powi(2);
         assert!((f.faces[0].params.w - omega).abs() < 1e-9);
         assert!((f.flux_scale - 100.0 * omega).abs() < 1e-6);
+    }
+
+    #[test]
+    fn an_intensity_change_alone_changes_the_flux_scale_the_faces_are_keyed_by() {
+        let (scale, offset) = SnapshotLight::spot_scale_offset(0.5, 0.5);
+        let spot = |candela: f32| SnapshotLight::Spot {
+            position: Vec3::new(0.0, 0.98, 0.0),
+            direction: Vec3::NEG_Y,
+            intensity: Vec3::splat(candela),
+            inverse_range_squared: 0.0,
+            spot_scale: scale,
+            spot_offset: offset,
+        };
+        let (a, b) = (light_faces(&spot(100.0), 256, bounds(), None), light_faces(&spot(200.0), 256, bounds(), None));
+        // The faces store the colour normalised by its largest channel: identical for both…
+        assert_eq!(a.faces, b.faces);
+        // …so the slot key must carry the flux scale, which doubles (prepare_rsm keys faces by its bits).
+        assert!((b.flux_scale / a.flux_scale - 2.0).abs() < 1e-6);
+        assert_ne!(a.flux_scale.to_bits(), b.flux_scale.to_bits());
     }
 
     #[test]
