@@ -122,6 +122,42 @@ pub struct DiffuseGiWarnings {
     pub messages: Vec<String>,
 }
 
+/// A GPU capability a method needs: `(name, required, found)`.
+pub type Shortfall = (&'static str, u64, u64);
+
+/// The GPU check of a method's `finish`: `missing` lists what the device lacks, given its limits and
+/// downlevel flags (all flags when the adapter is unknown). On a shortfall, logs one warning naming the
+/// method, the limit and the value found, and returns `false`: the method stays disabled and the app
+/// runs on. `false` too in apps without a renderer.
+pub(crate) fn gpu_supports(
+    app: &mut App,
+    method: &str,
+    missing: impl FnOnce(&bevy::render::settings::WgpuLimits, bevy::render::render_resource::DownlevelFlags) -> Vec<Shortfall>,
+) -> bool {
+    use bevy::render::RenderApp;
+    use bevy::render::render_resource::DownlevelFlags;
+    use bevy::render::renderer::{RenderAdapter, RenderDevice};
+    let Some(render_app) = app.get_sub_app(RenderApp) else {
+        return false;
+    };
+    let Some(device) = render_app.world().get_resource::<RenderDevice>() else {
+        return false;
+    };
+    let flags = render_app
+        .world()
+        .get_resource::<RenderAdapter>()
+        .map_or(DownlevelFlags::all(), |a| a.get_downlevel_capabilities().flags);
+    let Some((name, required, found)) = missing(&device.limits(), flags).into_iter().next() else {
+        return true;
+    };
+    let message = format!(
+        "bevy_diffuse_gi: {method} disabled: the GPU lacks {name} (needs {required}, has {found}). \
+         The app runs on without its bounced light."
+    );
+    gi_warning(&mut app.world_mut().resource_mut::<DiffuseGiWarnings>(), message);
+    false
+}
+
 /// Logs `message` as a warning and records it in [`DiffuseGiWarnings`].
 pub(crate) fn gi_warning(warnings: &mut DiffuseGiWarnings, message: String) {
     warn!("{message}");

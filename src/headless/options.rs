@@ -209,6 +209,15 @@ where
     Ok(v)
 }
 
+/// `on` or `off`.
+fn on_off(flag: &str, text: &str) -> Result<bool, String> {
+    match text {
+        "on" => Ok(true),
+        "off" => Ok(false),
+        other => Err(format!("{flag}: `{other}` is not on or off")),
+    }
+}
+
 /// A number of any value (the plugin validates it, as it would a game's settings).
 fn any_number<T: std::str::FromStr>(flag: &str, text: &str) -> Result<T, String> {
     text.parse().map_err(|_| format!("{flag}: `{text}` is not a valid number"))
@@ -268,11 +277,7 @@ pub fn parse_args<'a>(args: impl IntoIterator<Item = &'a str>) -> Result<Headles
             "--ssbc-solid-angle" => options.vpl.ssbc_solid_angle = any_number(flag, value(flag, &mut args)?)?,
             "--ssbc-levels" => options.vpl.ssbc_levels = any_number(flag, value(flag, &mut args)?)?,
             "--ssbc-blur" => {
-                options.vpl.ssbc_blur = match value(flag, &mut args)? {
-                    "on" => true,
-                    "off" => false,
-                    other => return Err(format!("--ssbc-blur: `{other}` is not on or off")),
-                }
+                options.vpl.ssbc_blur = on_off(flag, value(flag, &mut args)?)?
             }
             "--rh-resolution" => {
                 let text = value(flag, &mut args)?;
@@ -302,11 +307,7 @@ pub fn parse_args<'a>(args: impl IntoIterator<Item = &'a str>) -> Result<Headles
             "--rh-threshold" => options.rh.bounce_threshold = any_number(flag, value(flag, &mut args)?)?,
             "--rh-reconstruction" => options.rh.reconstruction_samples = any_number(flag, value(flag, &mut args)?)?,
             "--rh-albedo" => {
-                options.rh.albedo_volume = match value(flag, &mut args)? {
-                    "on" => true,
-                    "off" => false,
-                    other => return Err(format!("--rh-albedo: `{other}` is not on or off")),
-                }
+                options.rh.albedo_volume = on_off(flag, value(flag, &mut args)?)?
             }
             "--rh-depth-occlusion" => {
                 let steps: u32 = any_number(flag, value(flag, &mut args)?)?;

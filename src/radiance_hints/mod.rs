@@ -108,7 +108,6 @@ use bevy::render::renderer::{RenderGraph, RenderGraphSystems};
 use crate::composite::GiViewSystems;
 use bevy::prelude::*;
 use bevy::render::render_resource::{SpecializedComputePipelines, SpecializedRenderPipelines};
-use bevy::render::renderer::{RenderAdapter, RenderDevice};
 use bevy::render::{ExtractSchedule, Render, RenderApp, RenderStartup, RenderSystems};
 use bevy::shader::Shader;
 
@@ -140,7 +139,7 @@ pub struct RhShaders {
 }
 
 /// The GPU capabilities Radiance Hints needs, as `(name, required, found)` for every shortfall.
-pub fn missing_capabilities(limits: &bevy::render::settings::WgpuLimits, compute: bool, indirect: bool) -> Vec<(&'static str, u64, u64)> {
+pub fn missing_capabilities(limits: &bevy::render::settings::WgpuLimits, compute: bool, indirect: bool) -> Vec<crate::Shortfall> {
     let mut missing = Vec::new();
     let mut need = |name, required: u64, found: u64| {
         if found < required {
@@ -212,29 +211,17 @@ impl Plugin for RadianceHintsPlugin {
     }
 
     fn finish(&self, app: &mut App) {
-        let Some(render_app) = app.get_sub_app_mut(RenderApp) else {
-            return;
-        };
-        let Some(device) = render_app.world().get_resource::<RenderDevice>() else {
-            return;
-        };
-        let limits = device.limits();
-        let downlevel = render_app
-            .world()
-            .get_resource::<RenderAdapter>()
-            .map(|a| a.get_downlevel_capabilities().flags);
         use bevy::render::render_resource::DownlevelFlags;
-        let compute = downlevel.is_none_or(|f| f.contains(DownlevelFlags::COMPUTE_SHADERS));
-        let indirect = downlevel.is_none_or(|f| f.contains(DownlevelFlags::INDIRECT_EXECUTION));
-        let missing = missing_capabilities(&limits, compute, indirect);
-        if let Some((name, required, found)) = missing.first() {
-            let message = format!(
-                "bevy_diffuse_gi: Radiance Hints disabled: the GPU lacks {name} (needs {required}, has {found}). \
-                 The app runs on without bounced light."
-            );
-            crate::gi_warning(&mut app.world_mut().resource_mut::<crate::DiffuseGiWarnings>(), message);
+        let supported = crate::gpu_supports(app, "Radiance Hints", |limits, flags| {
+            missing_capabilities(
+                limits,
+                flags.contains(DownlevelFlags::COMPUTE_SHADERS),
+                flags.contains(DownlevelFlags::INDIRECT_EXECUTION),
+            )
+        });
+        let Some(render_app) = app.get_sub_app_mut(RenderApp).filter(|_| supported) else {
             return;
-        }
+        };
         render_app
             .init_resource::<extract::ExtractedRhVolumes>()
             .init_resource::<prepare::RhVolumesGpu>()

@@ -105,11 +105,10 @@ pub(crate) fn update_vpls(
     mut commands: Commands,
     mut set: ResMut<VplSet>,
     snapshot: Option<Res<SceneSnapshot>>,
-    cameras: Query<(Entity, &Camera, &DiffuseGi, Option<&VplSettings>)>,
-    viewers: Query<(&Camera, &DiffuseGi, &GlobalTransform)>,
+    cameras: Query<(Entity, &Camera, &DiffuseGi, Option<&VplSettings>, &GlobalTransform)>,
     gi_lights: Query<Entity, With<GiLight>>,
 ) {
-    let Some(settings) = first_vpl_camera(cameras.iter()) else {
+    let Some(settings) = first_vpl_camera(cameras.iter().map(|(e, c, gi, s, _)| (e, c, gi, s))) else {
         if set.key.is_some() {
             *set = VplSet { generation: set.generation + 1, points_generation: set.points_generation + 1, ..default() };
         }
@@ -132,9 +131,9 @@ pub(crate) fn update_vpls(
         let hits = sources.iter().map(|l| pilot_hits(&snapshot, l)).collect();
         set.pilots = Some((pilot_key, hits));
     }
-    let positions: Vec<Vec3> = viewers
+    let positions: Vec<Vec3> = cameras
         .iter()
-        .filter(|(camera, gi, _)| camera.is_active && gi.enabled && gi.method == GiMethod::Vpl)
+        .filter(|(_, camera, gi, ..)| camera.is_active && gi.enabled && gi.method == GiMethod::Vpl)
         .map(|(.., transform)| transform.translation())
         .collect();
     let guides: Vec<EmissionGuide> = set

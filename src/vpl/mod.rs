@@ -84,7 +84,6 @@ pub(crate) mod extract;
 mod render;
 
 use bevy::prelude::*;
-use bevy::render::renderer::{RenderAdapter, RenderDevice};
 use bevy::render::RenderApp;
 
 pub use generate::Vpl;
@@ -231,7 +230,7 @@ impl Default for VplSettings {
 }
 
 /// The GPU capabilities the VPL method needs, as `(name, required, found)` for every shortfall.
-pub fn missing_capabilities(limits: &bevy::render::settings::WgpuLimits, compute: bool) -> Vec<(&'static str, u64, u64)> {
+pub fn missing_capabilities(limits: &bevy::render::settings::WgpuLimits, compute: bool) -> Vec<crate::Shortfall> {
     let mut missing = Vec::new();
     let mut need = |name, required: u64, found: u64| {
         if found < required {
@@ -272,26 +271,13 @@ impl Plugin for VplPlugin {
     }
 
     fn finish(&self, app: &mut App) {
-        let Some(render_app) = app.get_sub_app_mut(RenderApp) else {
-            return;
-        };
-        let Some(device) = render_app.world().get_resource::<RenderDevice>() else {
-            return;
-        };
-        let limits = device.limits();
-        let compute = render_app.world().get_resource::<RenderAdapter>().is_none_or(|a| {
-            a.get_downlevel_capabilities()
-                .flags
-                .contains(bevy::render::render_resource::DownlevelFlags::COMPUTE_SHADERS)
+        use bevy::render::render_resource::DownlevelFlags;
+        let supported = crate::gpu_supports(app, "the VPL method", |limits, flags| {
+            missing_capabilities(limits, flags.contains(DownlevelFlags::COMPUTE_SHADERS))
         });
-        if let Some((name, required, found)) = missing_capabilities(&limits, compute).first() {
-            let message = format!(
-                "bevy_diffuse_gi: the VPL method is disabled: the GPU lacks {name} (needs {required}, has {found}). \
-                 The app runs on without its bounced light."
-            );
-            crate::gi_warning(&mut app.world_mut().resource_mut::<crate::DiffuseGiWarnings>(), message);
+        let Some(render_app) = app.get_sub_app_mut(RenderApp).filter(|_| supported) else {
             return;
-        }
+        };
         render::add_render_systems(render_app);
     }
 }
