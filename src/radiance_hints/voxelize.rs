@@ -166,7 +166,7 @@ pub fn hint_validity(snapshot: &SceneSnapshot, world_from_local: Mat4, resolutio
                 for &d in &directions {
                     if let Some(hit) = snapshot.intersect(p, d, 0.0, f32::INFINITY) {
                         hits += 1;
-                        if snapshot.attributes[hit.triangle as usize].geometric_normal.dot(d) > 0.0 {
+                        if snapshot.attributes(hit.triangle).geometric_normal.dot(d) > 0.0 {
                             back += 1;
                         }
                     }

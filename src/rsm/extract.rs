@@ -17,15 +17,78 @@ pub struct RsmVertex {
     pub albedo: [f32; 3],
 }
 
-/// The scene geometry the RSMs rasterise, extracted only when the snapshot's geometry changes.
+/// The scene geometry the RSMs rasterise, extracted only when the snapshot's geometry changes, and then
+/// only for the instances that changed.
 #[derive(Resource, Default)]
 pub struct ExtractedGiGeometry {
-    /// The snapshot generation `vertices` was built from.
+    /// The snapshot generation the extracted vertices are at.
     pub generation: u64,
-    /// New vertex data waiting to be uploaded (`None` once uploaded or when unchanged).
+    /// The snapshot's layout generation they are at (instances, triangle counts).
+    pub layout_generation: u64,
+    /// Every vertex, waiting to be uploaded (after a layout change or on the first extraction).
     pub pending: Option<Vec<RsmVertex>>,
+    /// Vertex ranges to overwrite in place: `(first vertex, vertices)` (instances that moved or changed
+    /// material).
+    pub pending_ranges: Vec<(u32, Vec<RsmVertex>)>,
+    /// World-space boxes where geometry changed since the RSMs were last prepared; `None` = everywhere.
+    pub dirty: Option<Vec<(Vec3, Vec3)>>,
     /// World-space bounds of the scene.
     pub bounds: Option<(Vec3, Vec3)>,
+}
+
+/// The RSM vertices of one instance (its triangles in global order).
+fn instance_vertices(snapshot: &SceneSnapshot, instance: &crate::scene::SnapshotInstance, out: &mut Vec<RsmVertex>) {
+    let Some(range) = snapshot.instance_triangles(instance.key) else {
+        return;
+    };
+    for (local, global) in range.enumerate() {
+        let normal = instance.attributes(local).geometric_normal.to_array();
+        let albedo = snapshot.triangle_albedo(global).to_array();
+        for p in instance.triangle(local) {
+            out.push(RsmVertex { position: p.to_array(), normal, albedo });
+        }
+    }
+}
+
+pub(crate) fn extract_gi_geometry(
+    snapshot: Extract<Option<Res<SceneSnapshot>>>,
+    mut geometry: ResMut<ExtractedGiGeometry>,
+) {
+    let Some(snapshot) = snapshot.as_ref() else {
+        return;
+    };
+    if snapshot.geometry_generation == geometry.generation {
+        return;
+    }
+    let incremental = geometry.generation > 0
+        && snapshot.geometry_generation == geometry.generation + 1
+        && snapshot.layout_generation == geometry.layout_generation
+        && !snapshot.last_change.layout_changed;
+    if incremental {
+        // Only the instances this generation changed.
+        for instance in snapshot.instances().iter().filter(|i| i.version == snapshot.geometry_generation) {
+            let Some(range) = snapshot.instance_triangles(instance.key) else {
+                continue;
+            };
+            let mut vertices = Vec::with_capacity(instance.triangle_count() * 3);
+            instance_vertices(snapshot, instance, &mut vertices);
+            geometry.pending_ranges.push((range.start * 3, vertices));
+        }
+        if let Some(dirty) = geometry.dirty.as_mut() {
+            dirty.extend(snapshot.last_change.dirty.iter().copied());
+        }
+    } else {
+        let mut vertices = Vec::with_capacity(snapshot.triangle_count() * 3);
+        for instance in snapshot.instances() {
+            instance_vertices(snapshot, instance, &mut vertices);
+        }
+        geometry.pending = Some(vertices);
+        geometry.pending_ranges.clear();
+        geometry.dirty = None;
+    }
+    geometry.generation = snapshot.geometry_generation;
+    geometry.layout_generation = snapshot.layout_generation;
+    geometry.bounds = snapshot.bounds();
 }
 
 /// A GI light as the RSM passes see it.
@@ -41,34 +104,6 @@ pub struct ExtractedGiLight {
 #[derive(Resource, Default, Clone, Debug, PartialEq)]
 pub struct ExtractedGiLights {
     pub lights: Vec<ExtractedGiLight>,
-}
-
-pub(crate) fn extract_gi_geometry(
-    snapshot: Extract<Option<Res<SceneSnapshot>>>,
-    mut geometry: ResMut<ExtractedGiGeometry>,
-) {
-    let Some(snapshot) = snapshot.as_ref() else {
-        return;
-    };
-    if snapshot.geometry_generation == geometry.generation {
-        return;
-    }
-    let mut vertices = Vec::with_capacity(snapshot.triangle_count() * 3);
-    for i in 0..snapshot.triangle_count() as u32 {
-        let positions = snapshot.triangle(i);
-        let normal = snapshot.attributes[i as usize].geometric_normal.to_array();
-        let albedo = snapshot.triangle_albedo(i).to_array();
-        for p in positions {
-            vertices.push(RsmVertex {
-                position: p.to_array(),
-                normal,
-                albedo,
-            });
-        }
-    }
-    geometry.generation = snapshot.geometry_generation;
-    geometry.pending = Some(vertices);
-    geometry.bounds = snapshot.bounds();
 }
 
 type GiLightQuery<'a> = (

@@ -270,7 +270,7 @@ fn cube_faces(
 /// What a light's faces are rendered from: geometry generation, atlas generation, face uniforms, and the
 /// bits of the flux scale (the faces store the light's colour normalised by its largest channel, so an
 /// intensity change alone shows only there).
-pub type RsmSlotKey = (u64, u64, Vec<RsmFaceUniform>, u32);
+pub type RsmSlotKey = (u64, Vec<RsmFaceUniform>, u32);
 
 /// Where one light's faces live in the atlas and what they were last drawn from.
 #[derive(Clone, Debug, PartialEq)]
@@ -284,6 +284,8 @@ pub struct RsmSlot {
     pub current: RsmSlotKey,
     /// What they showed when last drawn (`None` = never drawn).
     pub drawn: Option<RsmSlotKey>,
+    /// Faces (bit `i` = face `i`) whose frusta saw geometry change since they were drawn.
+    pub stale_faces: u32,
 }
 
 /// The RSM atlas and everything the injection pass reads. See the [module docs](self).
@@ -477,18 +479,36 @@ pub(crate) fn prepare_rsm(
     device: Res<RenderDevice>,
     queue: Res<RenderQueue>,
 ) {
+    // Geometry: a full upload after a layout change, otherwise the changed instances' ranges in place.
+    let mut geometry_dirty: Option<Option<Vec<(Vec3, Vec3)>>> = None;
     if let Some(vertices) = geometry.pending.take() {
         atlas.vertex_count = vertices.len() as u32;
         atlas.vertices = (!vertices.is_empty()).then(|| {
             device.create_buffer_with_data(&BufferInitDescriptor {
                 label: Some("diffuse_gi_rsm_vertices"),
                 contents: bytemuck::cast_slice(&vertices),
-                usage: BufferUsages::VERTEX,
+                usage: BufferUsages::VERTEX | BufferUsages::COPY_DST,
             })
         });
-        atlas.geometry_generation = geometry.generation;
-        atlas.scene_bounds = geometry.bounds;
+        geometry_dirty = Some(None);
     }
+    let ranges = std::mem::take(&mut geometry.pending_ranges);
+    if !ranges.is_empty()
+        && let Some(buffer) = atlas.vertices.as_ref()
+    {
+        for (first, vertices) in &ranges {
+            let end = *first as u64 + vertices.len() as u64;
+            if end <= atlas.vertex_count as u64 && !vertices.is_empty() {
+                queue.write_buffer(buffer, *first as u64 * std::mem::size_of::<RsmVertex>() as u64, bytemuck::cast_slice(vertices));
+            }
+        }
+    }
+    if geometry_dirty.is_none() && geometry.generation != atlas.geometry_generation {
+        geometry_dirty = Some(geometry.dirty.take());
+    }
+    geometry.dirty = Some(Vec::new());
+    atlas.geometry_generation = geometry.generation;
+    atlas.scene_bounds = geometry.bounds;
     let scene_bounds = atlas.scene_bounds.unwrap_or((Vec3::splat(-1.0), Vec3::ONE));
 
     // Lay the lights out, dropping those beyond the device's array-layer limit.
@@ -531,15 +551,25 @@ pub(crate) fn prepare_rsm(
     atlas.dirty_faces.clear();
     let mut gpu_lights = Vec::new();
     for (entity, first_layer, faces, resolution, light_faces) in layouts {
-        let drawn = previous
+        let kept = previous
             .iter()
-            .find(|s| s.entity == entity && s.first_layer == first_layer && s.resolution == resolution)
-            .and_then(|s| s.drawn.clone());
-        let current = (atlas.geometry_generation, atlas.generation, light_faces.faces.clone(), light_faces.flux_scale.to_bits());
+            .find(|s| s.entity == entity && s.first_layer == first_layer && s.resolution == resolution);
+        let drawn = kept.and_then(|s| s.drawn.clone());
+        let mut stale_faces = kept.map_or(0, |s| s.stale_faces);
+        let current = (atlas.generation, light_faces.faces.clone(), light_faces.flux_scale.to_bits());
         let dirty = drawn.as_ref() != Some(&current);
         for (i, face) in light_faces.faces.iter().enumerate() {
+            // Geometry changed where this face looks (or everywhere).
+            let sees_change = match &geometry_dirty {
+                Some(None) => true,
+                Some(Some(boxes)) => boxes.iter().any(|&(lo, hi)| frustum_overlaps(face.clip_from_world, lo, hi)),
+                None => false,
+            };
+            if sees_change {
+                stale_faces |= 1 << i;
+            }
             let offset = atlas.face_uniforms.push(face);
-            if dirty {
+            if dirty || stale_faces & (1 << i) != 0 {
                 atlas.dirty_faces.push((first_layer + i as u32, offset, resolution));
             }
         }
@@ -560,6 +590,7 @@ pub(crate) fn prepare_rsm(
             light_faces,
             current,
             drawn,
+            stale_faces,
         });
     }
     // A light that went away changes the light set without anything to draw.
@@ -575,6 +606,29 @@ pub(crate) fn prepare_rsm(
     }
     *atlas.lights.get_mut() = gpu_lights;
     atlas.lights.write_buffer(&device, &queue);
+}
+
+/// Whether the box `lo..hi` may be visible through the clip volume of `clip_from_world` (wgpu depth
+/// `0..1`): false when all eight corners lie outside one clip plane. Conservative, correct for corners
+/// behind a perspective eye.
+pub fn frustum_overlaps(clip_from_world: Mat4, lo: Vec3, hi: Vec3) -> bool {
+    let corners: [Vec4; 8] = std::array::from_fn(|i| {
+        let p = Vec3::new(
+            if i & 1 == 0 { lo.x } else { hi.x },
+            if i & 2 == 0 { lo.y } else { hi.y },
+            if i & 4 == 0 { lo.z } else { hi.z },
+        );
+        clip_from_world * p.extend(1.0)
+    });
+    let planes: [fn(Vec4) -> f32; 6] = [
+        |c| c.w + c.x,
+        |c| c.w - c.x,
+        |c| c.w + c.y,
+        |c| c.w - c.y,
+        |c| c.z,
+        |c| c.w - c.z,
+    ];
+    !planes.iter().any(|plane| corners.iter().all(|&c| plane(c) < 0.0))
 }
 
 /// Draws the RSM faces that changed, once per frame and before any camera renders (the `RenderGraph`
@@ -621,6 +675,7 @@ pub(crate) fn draw_dirty_faces(
     }
     for slot in &mut atlas.slots {
         slot.drawn = Some(slot.current.clone());
+        slot.stale_faces = 0;
     }
     atlas.version += 1;
     for &(layer, offset, resolution) in &dirty {

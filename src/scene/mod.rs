@@ -19,20 +19,23 @@
 
 pub(crate) mod extract;
 
-use bevy::math::{Vec2, Vec3};
+use std::sync::Arc;
+
+use bevy::math::{Affine3A, Mat3, Vec2, Vec3};
 use bevy::prelude::{Entity, Resource};
 use obvhs::{
     BvhBuildParams,
-    cwbvh::{CwBvh, builder::build_cwbvh_from_tris},
+    aabb::Aabb,
+    cwbvh::{CwBvh, builder::{build_cwbvh, build_cwbvh_from_tris}},
     ray::{Ray, RayHit},
     triangle::Triangle as BvhTriangle,
 };
 use obvhs_glam::Vec3A;
 
-pub use extract::{SceneSnapshotPlugin, SceneSnapshotSystems, mesh_triangles};
+pub use extract::{SceneSnapshotPlugin, SceneSnapshotSystems, SnapshotTimings, mesh_local_triangles, mesh_triangles, skinned_triangles};
 
 
-/// Per-triangle data the BVH does not hold.
+/// Per-triangle data the BVH does not hold, in world space (see [`SceneSnapshot::attributes`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TriangleAttributes {
     /// Index into [`SceneSnapshot::materials`].
@@ -41,8 +44,10 @@ pub struct TriangleAttributes {
     pub geometric_normal: Vec3,
     /// Vertex normals in world space (unit length), or the geometric normal three times.
     pub normals: [Vec3; 3],
-    /// Texture coordinates, or zero when the mesh has none.
+    /// Texture coordinates of UV channel 0, or zero when the mesh has none.
     pub uvs: [Vec2; 3],
+    /// Texture coordinates of UV channel 1 (`Mesh::ATTRIBUTE_UV_1`), or channel 0 when the mesh has none.
+    pub uvs_1: [Vec2; 3],
     /// Area in m².
     pub area: f32,
 }
@@ -58,8 +63,17 @@ pub struct SnapshotMaterial {
     /// `emissive.alpha` of the [`StandardMaterial`](bevy::pbr::StandardMaterial): 1 = physical emission,
     /// 0 = the displayed value ignores exposure.
     pub emissive_exposure_weight: f32,
-    /// Index into [`SceneSnapshot::textures`] of the base-colour texture.
-    pub base_color_texture: Option<u32>,
+    /// The base-colour texture (multiplies `diffuse`, and its alpha the opacity).
+    pub base_color_texture: Option<TextureRef>,
+    /// The metallic-roughness texture (metallic in its blue channel), with the material's metallic factor
+    /// and its diffuse colour before metallic (`base_color × (1 − transmission)`): where present, the diffuse
+    /// reflectance is `base × texture_rgb × (1 − metallic × metallic_texture.b)` instead of `diffuse × texture`.
+    pub metallic_texture: Option<MetallicTexture>,
+    /// `AlphaMode::Mask(cutoff)`: surfaces whose opacity (`base_color.a × texture.a`) is below the cutoff let
+    /// rays through, as Bevy discards those fragments. `None` for every other alpha mode (treated as opaque).
+    pub alpha_cutoff: Option<f32>,
+    /// `base_color.a` of the material (only read with `alpha_cutoff`).
+    pub base_alpha: f32,
     /// Perceptual roughness in `[0, 1]`; only the Burley model of Bevy's direct light uses it.
     pub perceptual_roughness: f32,
     /// Which face Bevy's rasteriser culls (the material's `cull_mode`). Camera rays of the tracer skip
@@ -84,6 +98,9 @@ impl SnapshotMaterial {
         emissive: Vec3::ZERO,
         emissive_exposure_weight: 1.0,
         base_color_texture: None,
+        metallic_texture: None,
+        alpha_cutoff: None,
+        base_alpha: 1.0,
         perceptual_roughness: 1.0,
         culled_face: CulledFace::None,
     };
@@ -97,20 +114,81 @@ impl SnapshotMaterial {
     }
 }
 
-/// A linear RGB texture, sampled bilinearly with repeat wrapping.
+/// How a material reads one of its textures: which texture, through which UV channel and with which
+/// `uv_transform` (`KHR_texture_transform`, applied as Bevy's `StandardMaterial::uv_transform`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TextureRef {
+    /// Index into [`SceneSnapshot::textures`].
+    pub texture: u32,
+    /// 0 for `ATTRIBUTE_UV_0`, 1 for `ATTRIBUTE_UV_1`.
+    pub channel: u8,
+    pub uv_transform: bevy::math::Affine2,
+}
+
+impl TextureRef {
+    /// The texture's UVs of triangle `attributes` at barycentrics `(u, v)` of vertices 1 and 2.
+    pub fn uv(&self, attributes: &TriangleAttributes, u: f32, v: f32) -> Vec2 {
+        let uvs = if self.channel == 1 { &attributes.uvs_1 } else { &attributes.uvs };
+        let uv = uvs[0] * (1.0 - u - v) + uvs[1] * u + uvs[2] * v;
+        self.uv_transform.transform_point2(uv)
+    }
+}
+
+/// See [`SnapshotMaterial::metallic_texture`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MetallicTexture {
+    pub texture: TextureRef,
+    pub metallic: f32,
+    pub base: Vec3,
+}
+
+impl SnapshotMaterial {
+    /// Diffuse reflectance and opacity at barycentrics `(u, v)` of a triangle with this material.
+    pub fn diffuse_at(&self, textures: &[SnapshotTexture], attributes: &TriangleAttributes, u: f32, v: f32) -> Vec3 {
+        let sample = |r: &TextureRef| textures.get(r.texture as usize).map(|t| t.sample(r.uv(attributes, u, v)));
+        let base_texel = self.base_color_texture.as_ref().and_then(sample).map_or(Vec3::ONE, |t| t.truncate());
+        match &self.metallic_texture {
+            Some(m) => {
+                let metal = sample(&m.texture).map_or(1.0, |t| t.z) * m.metallic;
+                m.base * base_texel * (1.0 - metal).clamp(0.0, 1.0)
+            }
+            None => self.diffuse * base_texel,
+        }
+    }
+
+    /// Whether rays pass through this material at barycentrics `(u, v)` (an alpha-masked cut-out).
+    pub fn cut_out(&self, textures: &[SnapshotTexture], attributes: &TriangleAttributes, u: f32, v: f32) -> bool {
+        let Some(cutoff) = self.alpha_cutoff else {
+            return false;
+        };
+        let alpha = self
+            .base_color_texture
+            .as_ref()
+            .and_then(|r| textures.get(r.texture as usize).map(|t| t.sample(r.uv(attributes, u, v)).w))
+            .unwrap_or(1.0);
+        self.base_alpha * alpha < cutoff
+    }
+}
+
+/// A linear RGBA texture, sampled bilinearly with repeat wrapping.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SnapshotTexture {
     pub width: u32,
     pub height: u32,
-    /// Linear RGB texels, row-major.
-    pub texels: Vec<Vec3>,
+    /// Linear RGB texels with alpha, row-major.
+    pub texels: Vec<bevy::math::Vec4>,
 }
 
 impl SnapshotTexture {
+    /// A 1×1 white texture: the placeholder for an image not loaded (or not readable) yet.
+    pub fn white() -> Self {
+        Self { width: 1, height: 1, texels: vec![bevy::math::Vec4::ONE] }
+    }
+
     /// Bilinear sample at `uv` with repeat wrapping (glTF's default sampler).
-    pub fn sample(&self, uv: Vec2) -> Vec3 {
+    pub fn sample(&self, uv: Vec2) -> bevy::math::Vec4 {
         if self.texels.is_empty() {
-            return Vec3::ONE;
+            return bevy::math::Vec4::ONE;
         }
         let (w, h) = (self.width as i64, self.height as i64);
         let x = uv.x * self.width as f32 - 0.5;
@@ -246,44 +324,242 @@ pub struct SceneHit {
     pub barycentrics: Vec2,
 }
 
+/// Triangles of one mesh in its own (local) space with their BVH: the bottom level of the snapshot's
+/// two-level BVH. Built once per mesh asset (and pose, for skinned meshes) and shared by every instance.
+#[derive(Default)]
+pub struct MeshGeometry {
+    /// Triangles in BVH order.
+    triangles: Vec<BvhTriangle>,
+    /// Attributes of `triangles` in local space (material unused), same order.
+    attributes: Vec<TriangleAttributes>,
+    bvh: Option<CwBvh>,
+    bounds: Option<(Vec3, Vec3)>,
+}
+
+impl std::fmt::Debug for MeshGeometry {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("MeshGeometry").field("triangles", &self.triangles.len()).finish()
+    }
+}
+
+impl MeshGeometry {
+    /// Builds the geometry from local-space triangles (their `material` is ignored). Degenerate triangles
+    /// (zero area or non-finite vertices) are dropped.
+    pub fn new(triangles: impl IntoIterator<Item = InputTriangle>) -> Self {
+        let mut tris = Vec::new();
+        let mut attributes = Vec::new();
+        for t in triangles {
+            let [a, b, c] = t.positions;
+            if !(a.is_finite() && b.is_finite() && c.is_finite()) {
+                continue;
+            }
+            let cross = (b - a).cross(c - a);
+            let area = 0.5 * cross.length();
+            if area <= 1e-12 || !area.is_finite() {
+                continue;
+            }
+            let n = cross.normalize();
+            let normals = t
+                .normals
+                .filter(|ns| ns.iter().all(|v| v.is_finite() && v.length_squared() > 1e-12))
+                .map(|ns| ns.map(Vec3::normalize))
+                .unwrap_or([n; 3]);
+            let uvs = t.uvs.unwrap_or([Vec2::ZERO; 3]);
+            tris.push(BvhTriangle { v0: to_bvh(a), v1: to_bvh(b), v2: to_bvh(c) });
+            attributes.push(TriangleAttributes {
+                material: 0,
+                geometric_normal: n,
+                normals,
+                uvs,
+                uvs_1: t.uvs_1.unwrap_or(uvs),
+                area,
+            });
+        }
+        if tris.is_empty() {
+            return Self::default();
+        }
+        let bvh = build_cwbvh_from_tris(&tris, BvhBuildParams::medium_build(), &mut Default::default());
+        // Store triangles in BVH order so that leaves read contiguous memory.
+        let triangles: Vec<BvhTriangle> = bvh.primitive_indices.iter().map(|&i| tris[i as usize]).collect();
+        let attributes = bvh.primitive_indices.iter().map(|&i| attributes[i as usize]).collect();
+        let mut bvh = bvh;
+        bvh.primitive_indices = (0..triangles.len() as u32).collect();
+        let mut points = triangles.iter().flat_map(|t| [t.v0, t.v1, t.v2]);
+        let first = points.next().unwrap();
+        let (lo, hi) = points.fold((first, first), |(lo, hi), v| (lo.min(v), hi.max(v)));
+        Self {
+            triangles,
+            attributes,
+            bvh: Some(bvh),
+            bounds: Some((from_bvh(lo), from_bvh(hi))),
+        }
+    }
+
+    pub fn triangle_count(&self) -> usize {
+        self.triangles.len()
+    }
+
+    /// Local-space bounds, `None` when empty.
+    pub fn bounds(&self) -> Option<(Vec3, Vec3)> {
+        self.bounds
+    }
+}
+
+/// One mesh entity in the snapshot: shared local geometry, a transform and a material.
+#[derive(Clone, Debug)]
+pub struct SnapshotInstance {
+    /// Orders instances and identifies them across updates (the entity's bits for ECS meshes).
+    pub key: u64,
+    pub geometry: Arc<MeshGeometry>,
+    pub material: u32,
+    world_from_local: Affine3A,
+    /// `world_from_local⁻¹` in obvhs' glam, for rays.
+    local_from_world_bvh: obvhs_glam::Affine3A,
+    normal_matrix: Mat3,
+    /// A mirroring transform: world triangles swap vertices 1 and 2 to keep the front face in front.
+    mirrored: bool,
+    /// World-space bounds.
+    pub bounds: (Vec3, Vec3),
+    /// Global index of the instance's first triangle.
+    first_triangle: u32,
+    /// The [`SceneSnapshot::geometry_generation`] that last changed this instance.
+    pub version: u64,
+}
+
+impl SnapshotInstance {
+    /// `None` when the geometry is empty or the transform is not invertible.
+    fn new(key: u64, geometry: Arc<MeshGeometry>, world_from_local: Affine3A, material: u32) -> Option<Self> {
+        let (lo, hi) = geometry.bounds?;
+        let det = world_from_local.matrix3.determinant();
+        if !(det.is_finite() && det.abs() > 1e-18 && world_from_local.translation.is_finite()) {
+            return None;
+        }
+        let local_from_world = world_from_local.inverse();
+        let local_from_world_bvh = obvhs_glam::Affine3A::from_cols_array(&local_from_world.to_cols_array());
+        let mut bounds = (Vec3::INFINITY, Vec3::NEG_INFINITY);
+        for i in 0..8 {
+            let corner = Vec3::new(
+                if i & 1 == 0 { lo.x } else { hi.x },
+                if i & 2 == 0 { lo.y } else { hi.y },
+                if i & 4 == 0 { lo.z } else { hi.z },
+            );
+            let p = world_from_local.transform_point3(corner);
+            bounds = (bounds.0.min(p), bounds.1.max(p));
+        }
+        Some(Self {
+            key,
+            normal_matrix: Mat3::from(world_from_local.matrix3).inverse().transpose(),
+            mirrored: det < 0.0,
+            geometry,
+            material,
+            world_from_local,
+            local_from_world_bvh,
+            bounds,
+            first_triangle: 0,
+            version: 0,
+        })
+    }
+
+    pub fn world_from_local(&self) -> Affine3A {
+        self.world_from_local
+    }
+
+    /// Number of triangles.
+    pub fn triangle_count(&self) -> usize {
+        self.geometry.triangles.len()
+    }
+
+    /// World-space vertices of local triangle `i`.
+    pub fn triangle(&self, i: usize) -> [Vec3; 3] {
+        let t = &self.geometry.triangles[i];
+        let m = &self.world_from_local;
+        let [a, b, c] = [t.v0, t.v1, t.v2].map(|v| m.transform_point3(from_bvh(v)));
+        if self.mirrored { [a, c, b] } else { [a, b, c] }
+    }
+
+    /// World-space attributes of local triangle `i`. UVs and normals keep the local vertex order, which is
+    /// the order of [`SceneHit::barycentrics`].
+    pub fn attributes(&self, i: usize) -> TriangleAttributes {
+        let a = &self.geometry.attributes[i];
+        let n = |v: Vec3| (self.normal_matrix * v).try_normalize().unwrap_or(v);
+        let [p0, p1, p2] = self.triangle(i);
+        TriangleAttributes {
+            material: self.material,
+            geometric_normal: n(a.geometric_normal),
+            normals: a.normals.map(n),
+            uvs: a.uvs,
+            uvs_1: a.uvs_1,
+            area: 0.5 * (p1 - p0).cross(p2 - p0).length(),
+        }
+    }
+
+    fn local_ray(&self, ray: &Ray) -> Ray {
+        let origin = self.local_from_world_bvh.transform_point3a(ray.origin);
+        let direction = self.local_from_world_bvh.transform_vector3a(ray.direction) + Vec3A::ZERO;
+        Ray::new(origin, direction, ray.tmin, ray.tmax)
+    }
+}
+
+/// What the last [`SceneSnapshot::commit`] changed, for consumers that update incrementally.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct GeometryChange {
+    /// World-space bounds of everything that changed: old and new bounds of moved, added, removed or
+    /// re-materialed instances.
+    pub dirty: Vec<(Vec3, Vec3)>,
+    /// Whether instances were added or removed or changed their triangle count (global triangle indices
+    /// moved), as opposed to moving or changing material in place.
+    pub layout_changed: bool,
+}
+
 /// The CPU snapshot of the world. See the [module docs](self).
 #[derive(Resource, Default)]
 pub struct SceneSnapshot {
-    /// Triangles in BVH order.
-    triangles: Vec<BvhTriangle>,
-    /// Attributes of `triangles`, same order.
-    pub attributes: Vec<TriangleAttributes>,
+    /// Instances sorted by key.
+    instances: Vec<SnapshotInstance>,
+    /// Top level of the two-level BVH, over instance bounds.
+    tlas: Option<CwBvh>,
     pub materials: Vec<SnapshotMaterial>,
     pub textures: Vec<SnapshotTexture>,
     pub lights: Vec<SnapshotLightEntry>,
-    bvh: Option<CwBvh>,
-    /// Bumped every time the triangles or materials are rebuilt.
+    bounds: Option<(Vec3, Vec3)>,
+    triangle_count: usize,
+    /// Changes since the last commit.
+    pending: GeometryChange,
+    pending_any: bool,
+    /// What the last commit changed (from `geometry_generation − 1` to `geometry_generation`).
+    pub last_change: GeometryChange,
+    /// Bumped every time the triangles or materials change.
     pub geometry_generation: u64,
+    /// Bumped whenever the global triangle indices change (instances added, removed or resized).
+    pub layout_generation: u64,
     /// Bumped every time the lights are re-read.
     pub light_generation: u64,
 }
 
-/// A triangle given to [`SceneSnapshot::build`], in world space.
+/// A triangle given to [`SceneSnapshot::build`] (world space) or [`MeshGeometry::new`] (local space).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct InputTriangle {
     pub positions: [Vec3; 3],
     /// Vertex normals; `None` uses the geometric normal.
     pub normals: Option<[Vec3; 3]>,
     pub uvs: Option<[Vec2; 3]>,
+    /// UV channel 1; `None` uses channel 0.
+    pub uvs_1: Option<[Vec2; 3]>,
     pub material: u32,
 }
 
 impl InputTriangle {
     /// A flat triangle without UVs.
     pub fn flat(positions: [Vec3; 3], material: u32) -> Self {
-        Self { positions, normals: None, uvs: None, material }
+        Self { positions, normals: None, uvs: None, uvs_1: None, material }
     }
 }
 
 impl std::fmt::Debug for SceneSnapshot {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("SceneSnapshot")
-            .field("triangles", &self.triangles.len())
+            .field("instances", &self.instances.len())
+            .field("triangles", &self.triangle_count)
             .field("materials", &self.materials.len())
             .field("textures", &self.textures.len())
             .field("lights", &self.lights)
@@ -295,6 +571,10 @@ impl std::fmt::Debug for SceneSnapshot {
 
 fn to_bvh(v: Vec3) -> Vec3A {
     Vec3A::new(v.x, v.y, v.z)
+}
+
+fn from_bvh(v: Vec3A) -> Vec3 {
+    Vec3::new(v.x, v.y, v.z)
 }
 
 /// A ray for obvhs. Adding `+0.0` turns `−0.0` components into `+0.0`: obvhs takes the sign of a zero
@@ -331,159 +611,307 @@ fn intersect_triangle(tri: &BvhTriangle, ray: &Ray) -> Option<(f32, f32, f32)> {
     (t >= ray.tmin && t <= ray.tmax).then_some((t, u, v))
 }
 
-#[inline(always)]
-fn intersect_t(tri: &BvhTriangle, ray: &Ray) -> f32 {
-    intersect_triangle(tri, ray).map_or(f32::INFINITY, |(t, _, _)| t)
+/// Which faces a traversal ignores.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Faces {
+    /// Light transport: every surface is two-sided.
+    All,
+    /// Camera rays: skip what the rasteriser culls.
+    Visible,
 }
 
 impl SceneSnapshot {
-    /// Builds a snapshot from world-space triangles, materials and lights. Degenerate triangles (zero
-    /// area or non-finite vertices) are dropped; material indices out of range use the last material, or
-    /// [`SnapshotMaterial::DEFAULT_GREY`] when there is none.
+    /// Builds a snapshot from world-space triangles, materials and lights (one instance with an identity
+    /// transform per material index in use). Degenerate triangles (zero area or non-finite vertices) are
+    /// dropped; material indices out of range use the last material, or [`SnapshotMaterial::DEFAULT_GREY`]
+    /// when there is none.
     pub fn build(
         triangles: impl IntoIterator<Item = InputTriangle>,
-        mut materials: Vec<SnapshotMaterial>,
+        materials: Vec<SnapshotMaterial>,
         textures: Vec<SnapshotTexture>,
         lights: Vec<SnapshotLightEntry>,
     ) -> Self {
-        let mut snapshot = Self {
-            lights,
-            textures,
-            ..Self::default()
-        };
-        if materials.is_empty() {
-            materials.push(SnapshotMaterial::DEFAULT_GREY);
-        }
+        let mut snapshot = Self { lights, textures, ..Self::default() };
         snapshot.set_geometry(triangles, materials);
         snapshot
     }
 
-    /// Replaces the geometry and materials, rebuilding the BVH.
-    pub fn set_geometry(&mut self, triangles: impl IntoIterator<Item = InputTriangle>, materials: Vec<SnapshotMaterial>) {
-        let material_count = materials.len().max(1) as u32;
-        let mut tris = Vec::new();
-        let mut attributes = Vec::new();
+    /// Replaces the geometry and materials with world-space triangles: one identity-transform instance
+    /// per material (keys are the material indices).
+    pub fn set_geometry(&mut self, triangles: impl IntoIterator<Item = InputTriangle>, mut materials: Vec<SnapshotMaterial>) {
+        if materials.is_empty() {
+            materials.push(SnapshotMaterial::DEFAULT_GREY);
+        }
+        let last = materials.len() as u32 - 1;
+        let mut by_material: std::collections::BTreeMap<u32, Vec<InputTriangle>> = Default::default();
         for t in triangles {
-            let [a, b, c] = t.positions;
-            if !(a.is_finite() && b.is_finite() && c.is_finite()) {
-                continue;
-            }
-            let cross = (b - a).cross(c - a);
-            let area = 0.5 * cross.length();
-            if area <= 1e-12 || !area.is_finite() {
-                continue;
-            }
-            let n = cross.normalize();
-            let normals = t
-                .normals
-                .filter(|ns| ns.iter().all(|v| v.is_finite() && v.length_squared() > 1e-12))
-                .map(|ns| ns.map(Vec3::normalize))
-                .unwrap_or([n; 3]);
-            tris.push(BvhTriangle {
-                v0: to_bvh(a),
-                v1: to_bvh(b),
-                v2: to_bvh(c),
-            });
-            attributes.push(TriangleAttributes {
-                material: t.material.min(material_count - 1),
-                geometric_normal: n,
-                normals,
-                uvs: t.uvs.unwrap_or([Vec2::ZERO; 3]),
-                area,
-            });
+            by_material.entry(t.material.min(last)).or_default().push(t);
         }
+        for key in self.instances.iter().map(|i| i.key).collect::<Vec<_>>() {
+            self.remove_instance(key);
+        }
+        self.materials = materials;
+        for (material, tris) in by_material {
+            let geometry = Arc::new(MeshGeometry::new(tris));
+            self.set_instance(material as u64, geometry, Affine3A::IDENTITY, material);
+        }
+        self.commit();
+    }
 
-        self.bvh = None;
-        if !tris.is_empty() {
-            let bvh = build_cwbvh_from_tris(&tris, BvhBuildParams::medium_build(), &mut Default::default());
-            // Store triangles in BVH order so that leaves read contiguous memory.
-            self.triangles = bvh.primitive_indices.iter().map(|&i| tris[i as usize]).collect();
-            self.attributes = bvh.primitive_indices.iter().map(|&i| attributes[i as usize]).collect();
-            let mut bvh = bvh;
-            bvh.primitive_indices = (0..self.triangles.len() as u32).collect();
-            self.bvh = Some(bvh);
-        } else {
-            self.triangles.clear();
-            self.attributes.clear();
-        }
-        self.materials = if materials.is_empty() {
-            vec![SnapshotMaterial::DEFAULT_GREY]
-        } else {
-            materials
+    /// Adds the instance `key`, or replaces its geometry, transform and material. Takes effect at the next
+    /// [`SceneSnapshot::commit`]. Empty geometry or a singular transform removes the instance.
+    pub fn set_instance(&mut self, key: u64, geometry: Arc<MeshGeometry>, world_from_local: Affine3A, material: u32) {
+        let material = material.min(self.materials.len().max(1) as u32 - 1);
+        let Some(mut instance) = SnapshotInstance::new(key, geometry, world_from_local, material) else {
+            self.remove_instance(key);
+            return;
         };
+        self.pending_any = true;
+        instance.version = self.geometry_generation + 1;
+        self.pending.dirty.push(instance.bounds);
+        match self.instances.binary_search_by_key(&key, |i| i.key) {
+            Ok(i) => {
+                let old = &self.instances[i];
+                self.pending.dirty.push(old.bounds);
+                if old.triangle_count() != instance.triangle_count() {
+                    self.pending.layout_changed = true;
+                }
+                self.instances[i] = instance;
+            }
+            Err(i) => {
+                self.pending.layout_changed = true;
+                self.instances.insert(i, instance);
+            }
+        }
+    }
+
+    /// Moves instance `key` (no-op when absent or unchanged).
+    pub fn set_instance_transform(&mut self, key: u64, world_from_local: Affine3A) {
+        let Some(i) = self.instance_index(key) else {
+            return;
+        };
+        let old = &self.instances[i];
+        if old.world_from_local == world_from_local {
+            return;
+        }
+        let (geometry, material) = (old.geometry.clone(), old.material);
+        self.set_instance(key, geometry, world_from_local, material);
+    }
+
+    /// Marks instance `key` changed in place (its material's contents changed).
+    pub fn touch_instance(&mut self, key: u64) {
+        if let Some(i) = self.instance_index(key) {
+            self.pending_any = true;
+            self.pending.dirty.push(self.instances[i].bounds);
+            self.instances[i].version = self.geometry_generation + 1;
+        }
+    }
+
+    /// Marks the whole snapshot changed at the next commit (consumers rebuild everything).
+    pub fn touch_all(&mut self) {
+        self.pending_any = true;
+        self.pending.layout_changed = true;
+        if let Some(b) = self.bounds {
+            self.pending.dirty.push(b);
+        }
+    }
+
+    /// Removes instance `key` at the next commit (no-op when absent).
+    pub fn remove_instance(&mut self, key: u64) {
+        if let Some(i) = self.instance_index(key) {
+            let old = self.instances.remove(i);
+            self.pending.dirty.push(old.bounds);
+            self.pending.layout_changed = true;
+            self.pending_any = true;
+        }
+    }
+
+    fn instance_index(&self, key: u64) -> Option<usize> {
+        self.instances.binary_search_by_key(&key, |i| i.key).ok()
+    }
+
+    /// The instance `key`, if present.
+    pub fn instance(&self, key: u64) -> Option<&SnapshotInstance> {
+        self.instance_index(key).map(|i| &self.instances[i])
+    }
+
+    /// Every instance, by key.
+    pub fn instances(&self) -> &[SnapshotInstance] {
+        &self.instances
+    }
+
+    /// Whether changes wait for [`SceneSnapshot::commit`].
+    pub fn has_pending_changes(&self) -> bool {
+        self.pending_any
+    }
+
+    /// Applies the pending instance changes: rebuilds the top-level BVH over instance bounds (the meshes'
+    /// own BVHs are kept), bumps [`SceneSnapshot::geometry_generation`] and records
+    /// [`SceneSnapshot::last_change`]. Costs O(instances · log instances); does nothing without changes.
+    pub fn commit(&mut self) {
+        if !self.pending_any {
+            return;
+        }
+        self.pending_any = false;
+        self.last_change = std::mem::take(&mut self.pending);
         self.geometry_generation += 1;
+        if self.last_change.layout_changed {
+            self.layout_generation += 1;
+        }
+        let mut first = 0u32;
+        for instance in &mut self.instances {
+            instance.first_triangle = first;
+            first += instance.triangle_count() as u32;
+        }
+        self.triangle_count = first as usize;
+        self.bounds = self
+            .instances
+            .iter()
+            .map(|i| i.bounds)
+            .reduce(|(lo, hi), (l, h)| (lo.min(l), hi.max(h)));
+        self.tlas = (!self.instances.is_empty()).then(|| {
+            let boxes: Vec<Aabb> = self
+                .instances
+                .iter()
+                .map(|i| {
+                    // A little padding keeps flat instances (a single wall) from slipping through.
+                    let pad = ((i.bounds.1 - i.bounds.0).max_element() * 1e-5).max(1e-6);
+                    Aabb::new(to_bvh(i.bounds.0 - pad), to_bvh(i.bounds.1 + pad))
+                })
+                .collect();
+            build_cwbvh(&boxes, BvhBuildParams::medium_build(), &mut Default::default())
+        });
+        if self.materials.is_empty() {
+            self.materials.push(SnapshotMaterial::DEFAULT_GREY);
+        }
     }
 
     /// Number of triangles.
     pub fn triangle_count(&self) -> usize {
-        self.triangles.len()
+        self.triangle_count
     }
 
-    /// World-space vertices of triangle `i` (BVH order).
+    /// The instance holding global triangle `i` and the triangle's index inside it.
+    pub fn locate(&self, i: u32) -> (&SnapshotInstance, usize) {
+        let k = self.instances.partition_point(|inst| inst.first_triangle <= i) - 1;
+        let instance = &self.instances[k];
+        (instance, (i - instance.first_triangle) as usize)
+    }
+
+    /// World-space vertices of global triangle `i`.
     pub fn triangle(&self, i: u32) -> [Vec3; 3] {
-        let t = &self.triangles[i as usize];
-        [t.v0, t.v1, t.v2].map(|v| Vec3::new(v.x, v.y, v.z))
+        let (instance, local) = self.locate(i);
+        instance.triangle(local)
+    }
+
+    /// World-space attributes of global triangle `i`.
+    pub fn attributes(&self, i: u32) -> TriangleAttributes {
+        let (instance, local) = self.locate(i);
+        instance.attributes(local)
+    }
+
+    /// Every triangle's global index, world vertices and material, instance by instance.
+    pub fn triangles(&self) -> impl Iterator<Item = (u32, [Vec3; 3])> + '_ {
+        self.instances.iter().flat_map(|inst| {
+            (0..inst.triangle_count()).map(move |k| (inst.first_triangle + k as u32, inst.triangle(k)))
+        })
+    }
+
+    /// Global indices and world vertices of the triangles whose bounds overlap the box `lo..hi`.
+    pub fn triangles_overlapping(&self, lo: Vec3, hi: Vec3) -> impl Iterator<Item = (u32, [Vec3; 3])> + '_ {
+        self.instances
+            .iter()
+            .filter(move |inst| inst.bounds.0.cmple(hi).all() && inst.bounds.1.cmpge(lo).all())
+            .flat_map(move |inst| {
+                (0..inst.triangle_count()).filter_map(move |k| {
+                    let t = inst.triangle(k);
+                    let (tl, th) = (t[0].min(t[1]).min(t[2]), t[0].max(t[1]).max(t[2]));
+                    (tl.cmple(hi).all() && th.cmpge(lo).all()).then_some((inst.first_triangle + k as u32, t))
+                })
+            })
+    }
+
+    /// Global index range of the instance `key`'s triangles.
+    pub fn instance_triangles(&self, key: u64) -> Option<std::ops::Range<u32>> {
+        let inst = self.instance(key)?;
+        Some(inst.first_triangle..inst.first_triangle + inst.triangle_count() as u32)
     }
 
     /// The axis-aligned bounds of all triangles, or `None` for an empty scene.
     pub fn bounds(&self) -> Option<(Vec3, Vec3)> {
-        let mut iter = self.triangles.iter().flat_map(|t| [t.v0, t.v1, t.v2]);
-        let first = iter.next()?;
-        let (lo, hi) = iter.fold((first, first), |(lo, hi), v| (lo.min(v), hi.max(v)));
-        Some((Vec3::new(lo.x, lo.y, lo.z), Vec3::new(hi.x, hi.y, hi.z)))
+        self.bounds
+    }
+
+    /// Closest hit over the two-level BVH.
+    fn traverse(&self, ray: Ray, faces: Faces) -> Option<SceneHit> {
+        let tlas = self.tlas.as_ref()?;
+        let mut hit = RayHit::none();
+        let mut best: Option<(usize, u32, f32, f32)> = None;
+        tlas.ray_traverse(ray, &mut hit, |ray, id| {
+            let k = tlas.primitive_indices[id] as usize;
+            let inst = &self.instances[k];
+            let Some(bvh) = inst.geometry.bvh.as_ref() else {
+                return f32::INFINITY;
+            };
+            let local = inst.local_ray(ray);
+            let material = &self.materials[inst.material as usize];
+            let culled = faces == Faces::Visible && material.culled_face != CulledFace::None;
+            let masked = material.alpha_cutoff.is_some();
+            let mut local_hit = RayHit::none();
+            let mut uv = (0.0, 0.0);
+            let found = bvh.ray_traverse(local, &mut local_hit, |r, id| {
+                let Some((t, u, v)) = intersect_triangle(&inst.geometry.triangles[id], r) else {
+                    return f32::INFINITY;
+                };
+                if culled {
+                    let facing = inst.geometry.attributes[id].geometric_normal.dot(from_bvh(r.direction));
+                    let skip = match material.culled_face {
+                        CulledFace::Back => facing > 0.0,
+                        CulledFace::Front => facing < 0.0,
+                        CulledFace::None => false,
+                    };
+                    if skip {
+                        return f32::INFINITY;
+                    }
+                }
+                if masked && material.cut_out(&self.textures, &inst.geometry.attributes[id], u, v) {
+                    return f32::INFINITY;
+                }
+                if t < r.tmax {
+                    uv = (u, v);
+                }
+                t
+            });
+            if found {
+                best = Some((k, local_hit.primitive_id, uv.0, uv.1));
+                local_hit.t
+            } else {
+                f32::INFINITY
+            }
+        });
+        let (k, local, u, v) = best?;
+        Some(SceneHit {
+            t: hit.t,
+            triangle: self.instances[k].first_triangle + local,
+            barycentrics: Vec2::new(u, v),
+        })
     }
 
     /// The closest hit along `origin + t · direction` for `t ∈ [t_min, t_max]`. `direction` must be unit
     /// length for `t` to be a distance.
     pub fn intersect(&self, origin: Vec3, direction: Vec3, t_min: f32, t_max: f32) -> Option<SceneHit> {
-        let bvh = self.bvh.as_ref()?;
-        let ray = bvh_ray(origin, direction, t_min, t_max);
-        let mut hit = RayHit::none();
-        if !bvh.ray_traverse(ray, &mut hit, |ray, id| intersect_t(&self.triangles[id], ray)) {
-            return None;
-        }
-        let tri = &self.triangles[hit.primitive_id as usize];
-        // Recompute the barycentrics of the closest triangle only (the traversal needs just `t`).
-        let (t, u, v) = intersect_triangle(tri, &Ray::new(ray.origin, ray.direction, t_min, f32::INFINITY))?;
-        Some(SceneHit {
-            t,
-            triangle: hit.primitive_id,
-            barycentrics: Vec2::new(u, v),
-        })
+        self.traverse(bvh_ray(origin, direction, t_min, t_max), Faces::All)
     }
 
     /// Like [`SceneSnapshot::intersect`], but skipping faces the rasteriser culls (see
     /// [`SnapshotMaterial::culled_face`]): what a camera ray sees in Bevy.
     pub fn intersect_visible(&self, origin: Vec3, direction: Vec3, t_min: f32, t_max: f32) -> Option<SceneHit> {
-        let bvh = self.bvh.as_ref()?;
-        let ray = bvh_ray(origin, direction, t_min, t_max);
-        let mut hit = RayHit::none();
-        let culled = |id: usize| {
-            let a = &self.attributes[id];
-            let facing = a.geometric_normal.dot(direction);
-            match self.materials[a.material as usize].culled_face {
-                CulledFace::None => false,
-                CulledFace::Back => facing > 0.0,
-                CulledFace::Front => facing < 0.0,
-            }
-        };
-        if !bvh.ray_traverse(ray, &mut hit, |ray, id| {
-            if culled(id) { f32::INFINITY } else { intersect_t(&self.triangles[id], ray) }
-        }) {
-            return None;
-        }
-        let tri = &self.triangles[hit.primitive_id as usize];
-        let (t, u, v) = intersect_triangle(tri, &Ray::new(ray.origin, ray.direction, t_min, f32::INFINITY))?;
-        Some(SceneHit {
-            t,
-            triangle: hit.primitive_id,
-            barycentrics: Vec2::new(u, v),
-        })
+        self.traverse(bvh_ray(origin, direction, t_min, t_max), Faces::Visible)
     }
 
     /// Whether anything blocks the open segment `origin + t · direction`, `t ∈ (t_min, t_max)`.
     pub fn occluded(&self, origin: Vec3, direction: Vec3, t_min: f32, t_max: f32) -> bool {
-        let Some(bvh) = self.bvh.as_ref() else {
+        let Some(tlas) = self.tlas.as_ref() else {
             return false;
         };
         // Written so that NaN bounds are rejected too.
@@ -491,43 +919,53 @@ impl SceneSnapshot {
             return false;
         }
         let ray = bvh_ray(origin, direction, t_min, t_max);
-        !bvh.ray_traverse_miss(ray, |ray, id| intersect_t(&self.triangles[id], ray))
+        !tlas.ray_traverse_miss(ray, |ray, id| {
+            let inst = &self.instances[tlas.primitive_indices[id] as usize];
+            let Some(bvh) = inst.geometry.bvh.as_ref() else {
+                return f32::INFINITY;
+            };
+            let material = &self.materials[inst.material as usize];
+            let masked = material.alpha_cutoff.is_some();
+            let blocked = !bvh.ray_traverse_miss(inst.local_ray(ray), |r, id| match intersect_triangle(&inst.geometry.triangles[id], r) {
+                Some((_, u, v)) if masked && material.cut_out(&self.textures, &inst.geometry.attributes[id], u, v) => f32::INFINITY,
+                Some((t, _, _)) => t,
+                None => f32::INFINITY,
+            });
+            if blocked { ray.tmin } else { f32::INFINITY }
+        })
     }
 
-    /// The mean diffuse albedo of triangle `i`: its material's diffuse colour times the mean of its
-    /// base-colour texture at the corners, edge midpoints and centroid. The GI methods' low-frequency
-    /// inputs (RSM albedo, albedo volumes) use this per-triangle colour.
+    /// The mean diffuse albedo of triangle `i`: its material's diffuse reflectance at the corners, edge
+    /// midpoints and centroid. The GI methods' low-frequency inputs (RSM albedo, albedo volumes) use this
+    /// per-triangle colour.
     pub fn triangle_albedo(&self, i: u32) -> Vec3 {
-        let attributes = &self.attributes[i as usize];
-        let material = &self.materials[attributes.material as usize];
-        let Some(texture) = material.base_color_texture.and_then(|t| self.textures.get(t as usize)) else {
+        let (instance, local) = self.locate(i);
+        let attributes = &instance.geometry.attributes[local];
+        let material = &self.materials[instance.material as usize];
+        if material.base_color_texture.is_none() && material.metallic_texture.is_none() {
             return material.diffuse;
-        };
-        let [a, b, c] = attributes.uvs;
-        let points = [a, b, c, (a + b) * 0.5, (b + c) * 0.5, (c + a) * 0.5, (a + b + c) / 3.0];
-        material.diffuse * (points.iter().map(|uv| texture.sample(*uv)).sum::<Vec3>() / points.len() as f32)
+        }
+        const POINTS: [(f32, f32); 7] =
+            [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (0.5, 0.0), (0.5, 0.5), (0.0, 0.5), (1.0 / 3.0, 1.0 / 3.0)];
+        POINTS.iter().map(|&(u, v)| material.diffuse_at(&self.textures, attributes, u, v)).sum::<Vec3>() / 7.0
     }
 
     /// Surface data at a hit: position, unit shading normal, unit geometric normal, diffuse reflectance
     /// and the material.
     pub fn surface(&self, origin: Vec3, direction: Vec3, hit: &SceneHit) -> SurfacePoint<'_> {
-        let attributes = &self.attributes[hit.triangle as usize];
+        let (instance, local) = self.locate(hit.triangle);
+        let attributes = instance.attributes(local);
         let material = &self.materials[attributes.material as usize];
         let (u, v) = (hit.barycentrics.x, hit.barycentrics.y);
         let w = 1.0 - u - v;
         let normal = (attributes.normals[0] * w + attributes.normals[1] * u + attributes.normals[2] * v)
             .try_normalize()
             .unwrap_or(attributes.geometric_normal);
-        let mut diffuse = material.diffuse;
-        if let Some(texture) = material.base_color_texture.and_then(|t| self.textures.get(t as usize)) {
-            let uv = attributes.uvs[0] * w + attributes.uvs[1] * u + attributes.uvs[2] * v;
-            diffuse *= texture.sample(uv);
-        }
         SurfacePoint {
             position: origin + direction * hit.t,
             normal,
             geometric_normal: attributes.geometric_normal,
-            diffuse,
+            diffuse: material.diffuse_at(&self.textures, &instance.geometry.attributes[local], u, v),
             material,
         }
     }
@@ -644,11 +1082,11 @@ mod tests {
         let t = SnapshotTexture {
             width: 2,
             height: 1,
-            texels: vec![Vec3::ZERO, Vec3::ONE],
+            texels: vec![bevy::math::Vec4::ZERO, bevy::math::Vec4::ONE],
         };
-        assert_eq!(t.sample(Vec2::new(0.25, 0.5)), Vec3::ZERO);
-        assert_eq!(t.sample(Vec2::new(0.75, 0.5)), Vec3::ONE);
-        assert!((t.sample(Vec2::new(0.5, 0.5)) - Vec3::splat(0.5)).length() < 1e-6);
-        assert!((t.sample(Vec2::new(1.0, 0.5)) - Vec3::splat(0.5)).length() < 1e-6);
+        assert_eq!(t.sample(Vec2::new(0.25, 0.5)), bevy::math::Vec4::ZERO);
+        assert_eq!(t.sample(Vec2::new(0.75, 0.5)), bevy::math::Vec4::ONE);
+        assert!((t.sample(Vec2::new(0.5, 0.5)) - bevy::math::Vec4::splat(0.5)).length() < 1e-6);
+        assert!((t.sample(Vec2::new(1.0, 0.5)) - bevy::math::Vec4::splat(0.5)).length() < 1e-6);
     }
 }

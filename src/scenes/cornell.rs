@@ -145,7 +145,7 @@ pub fn spawn_cornell_geometry(
 pub fn cornell_snapshot() -> crate::scene::SceneSnapshot {
     use crate::scene::{SceneSnapshot, SnapshotLight, SnapshotLightEntry, SnapshotMaterial, extract::material_from_standard, mesh_triangles};
     let materials: Vec<SnapshotMaterial> =
-        [WHITE, RED, GREEN].iter().map(|c| material_from_standard(&diffuse_material(*c), None)).collect();
+        [WHITE, RED, GREEN].iter().map(|c| material_from_standard(&diffuse_material(*c))).collect();
     let mut triangles = Vec::new();
     let walls = [
         (Vec3::Y, Vec3::new(0.0, -1.0, 0.0), 0),

@@ -112,7 +112,7 @@ pub(crate) fn boxes_snapshot(
     lights: Vec<crate::scene::SnapshotLightEntry>,
 ) -> crate::scene::SceneSnapshot {
     use crate::scene::{SceneSnapshot, extract::material_from_standard, mesh_triangles};
-    let materials = palette.iter().map(|c| material_from_standard(&cornell::diffuse_material(*c), None)).collect();
+    let materials = palette.iter().map(|c| material_from_standard(&cornell::diffuse_material(*c))).collect();
     let mut triangles = Vec::new();
     for &(lo, hi, material) in boxes {
         let mesh = Mesh::from(Cuboid::from_corners(lo, hi));

@@ -378,8 +378,8 @@ pub fn ism_points(snapshot: &SceneSnapshot, count: u32, seed: u32) -> Vec<IsmPoi
     }
     let mut cdf = Vec::with_capacity(n);
     let mut total = 0.0f64;
-    for i in 0..n {
-        total += snapshot.attributes[i].area.max(0.0) as f64;
+    for (_, [a, b, c]) in snapshot.triangles() {
+        total += (0.5 * (b - a).cross(c - a).length()).max(0.0) as f64;
         cdf.push(total);
     }
     if total <= 0.0 {
@@ -414,7 +414,7 @@ pub fn automatic_bound(vpl_count: usize, surface_area: f32) -> f32 {
 
 /// Total surface area of the snapshot, m².
 pub fn surface_area(snapshot: &SceneSnapshot) -> f32 {
-    snapshot.attributes.iter().map(|a| a.area.max(0.0)).sum()
+    snapshot.triangles().map(|(_, [a, b, c])| (0.5 * (b - a).cross(c - a).length()).max(0.0)).sum()
 }
 
 #[cfg(test)]
