@@ -12,7 +12,7 @@ use bevy::render::render_resource::{Extent3d, TextureDimension, TextureFormat, T
 use bevy::render::Extract;
 
 use super::settings::RadianceHintsVolume;
-use super::voxelize::{GeometryVoxels, voxelize};
+use super::voxelize::{GeometryVoxels, voxelize, voxelize_update};
 use crate::camera::{DiffuseGi, GiMethod, GiOutput};
 use crate::light::GiLight;
 use crate::rsm::RsmFocus;
@@ -144,7 +144,13 @@ pub(crate) fn update_geometry_voxels(
         if voxels.is_some_and(|v| v.key == key) {
             continue;
         }
-        let data = voxelize(&snapshot, matrix, settings.resolution);
+        // The same volume one geometry change later: redo only the cells the change touched.
+        let data = match voxels {
+            Some(v) if v.key.1 == key.1 && v.key.2 == key.2 && v.key.0 + 1 == key.0 => {
+                voxelize_update(&snapshot, matrix, settings.resolution, &v.data, &snapshot.last_change.dirty)
+            }
+            _ => voxelize(&snapshot, matrix, settings.resolution),
+        };
         commands.entity(entity).insert(RhGeometryVoxels {
             generation: voxels.map_or(1, |v| v.generation + 1),
             key,

@@ -15,7 +15,9 @@
 //!   injection tests each RSM sample's path to its receiver against it, and the extra bounces march it to
 //!   find the surface each direction sees.
 //!
-//! Cost: O(triangles × voxels each overlaps) plus 32 BVH rays per hint, once per geometry change.
+//! Cost: O(triangles × voxels each overlaps) plus 32 BVH rays per hint for a full voxelisation (a new
+//! volume, resolution or transform). When meshes move, [`voxelize_update`] redoes only the cells their old
+//! and new bounds touch (plus one cell around), so one moving mesh costs what its bounds cover.
 
 use bevy::math::{Mat4, UVec3, Vec3, Vec4};
 
@@ -36,6 +38,9 @@ pub struct GeometryVoxels {
     pub occupancy_resolution: UVec3,
     /// One bit per occupancy voxel, x fastest, 32 voxels per word.
     pub occupancy: Vec<u32>,
+    /// Per hint cell: `Σ albedo × area` (rgb) and `Σ area` (a), in cell units, before dilation; kept so that
+    /// [`voxelize_update`] can redo only the cells a change touches.
+    pub albedo_sums: Vec<Vec4>,
 }
 
 /// The occupancy grid resolution for a hint grid.
@@ -43,43 +48,150 @@ pub fn occupancy_resolution(hints: UVec3) -> UVec3 {
     (hints * OCCUPANCY_FACTOR).min(UVec3::splat(MAX_OCCUPANCY_RESOLUTION))
 }
 
+/// An inclusive box of cells.
+type CellBox = (UVec3, UVec3);
+
 /// Voxelises `snapshot` into the volume `world_from_local` (the unit cube) with `resolution` hints.
 pub fn voxelize(snapshot: &SceneSnapshot, world_from_local: Mat4, resolution: UVec3) -> GeometryVoxels {
     let res = resolution.max(UVec3::ONE);
     let local_from_world = world_from_local.inverse();
-    let mut albedo = voxelize_albedo(snapshot, local_from_world, res);
+    let all = (UVec3::ZERO, res - 1);
+    let mut sums = vec![Vec4::ZERO; (res.x * res.y * res.z) as usize];
+    albedo_sums(snapshot, local_from_world, res, all, &mut sums);
+    let mut albedo = finish_albedo(&sums, res);
     let validity = hint_validity(snapshot, world_from_local, res);
     for (a, v) in albedo.iter_mut().zip(validity) {
         a.w = v;
     }
     let occupancy_resolution = occupancy_resolution(res);
-    GeometryVoxels {
-        albedo_validity: albedo,
-        occupancy: voxelize_occupancy(snapshot, local_from_world, occupancy_resolution),
-        occupancy_resolution,
+    let words = ((occupancy_resolution.x * occupancy_resolution.y * occupancy_resolution.z) as usize).div_ceil(32);
+    let mut occupancy = vec![0u32; words];
+    occupancy_bits(snapshot, local_from_world, occupancy_resolution, (UVec3::ZERO, occupancy_resolution - 1), &mut occupancy);
+    GeometryVoxels { albedo_validity: albedo, occupancy, occupancy_resolution, albedo_sums: sums }
+}
+
+/// `previous` brought up to date after geometry changed inside the world-space boxes `dirty`: only the
+/// cells those boxes touch are voxelised again (the albedo dilation, O(cells), runs over the whole grid).
+/// Albedo and occupancy equal [`voxelize`] of the new scene when `previous` was voxelised from the old
+/// one; validity is redone for the hints in and next to the boxes only (a solid that moved can only put
+/// hints inside itself there), so a far hint whose validity rays the change shades keeps its old value.
+pub fn voxelize_update(
+    snapshot: &SceneSnapshot,
+    world_from_local: Mat4,
+    resolution: UVec3,
+    previous: &GeometryVoxels,
+    dirty: &[(Vec3, Vec3)],
+) -> GeometryVoxels {
+    let res = resolution.max(UVec3::ONE);
+    let local_from_world = world_from_local.inverse();
+    let occupancy_res = occupancy_resolution(res);
+    if previous.albedo_sums.len() != (res.x * res.y * res.z) as usize || previous.occupancy_resolution != occupancy_res {
+        return voxelize(snapshot, world_from_local, res);
     }
+    let mut out = previous.clone();
+    let mut validity_boxes = Vec::new();
+    for &(lo, hi) in dirty {
+        if let Some(cells) = cell_box(local_from_world, res, lo, hi, 1) {
+            for z in cells.0.z..=cells.1.z {
+                for y in cells.0.y..=cells.1.y {
+                    for x in cells.0.x..=cells.1.x {
+                        out.albedo_sums[cell_index(UVec3::new(x, y, z), res)] = Vec4::ZERO;
+                    }
+                }
+            }
+            albedo_sums(snapshot, local_from_world, res, cells, &mut out.albedo_sums);
+            validity_boxes.push(cells);
+        }
+        if let Some(voxels) = cell_box(local_from_world, occupancy_res, lo, hi, 1) {
+            for z in voxels.0.z..=voxels.1.z {
+                for y in voxels.0.y..=voxels.1.y {
+                    for x in voxels.0.x..=voxels.1.x {
+                        let i = cell_index(UVec3::new(x, y, z), occupancy_res);
+                        out.occupancy[i / 32] &= !(1 << (i % 32));
+                    }
+                }
+            }
+            occupancy_bits(snapshot, local_from_world, occupancy_res, voxels, &mut out.occupancy);
+        }
+    }
+    let validity: Vec<f32> = previous.albedo_validity.iter().map(|a| a.w).collect();
+    let mut albedo = finish_albedo(&out.albedo_sums, res);
+    for (a, v) in albedo.iter_mut().zip(validity) {
+        a.w = v;
+    }
+    for cells in validity_boxes {
+        for z in cells.0.z..=cells.1.z {
+            for y in cells.0.y..=cells.1.y {
+                for x in cells.0.x..=cells.1.x {
+                    let c = UVec3::new(x, y, z);
+                    albedo[cell_index(c, res)].w = hint_valid(snapshot, world_from_local, res, c);
+                }
+            }
+        }
+    }
+    out.albedo_validity = albedo;
+    out
+}
+
+/// The cells of a `res` grid over the volume that the world box `lo..hi` touches, grown by `margin`.
+fn cell_box(local_from_world: Mat4, res: UVec3, lo: Vec3, hi: Vec3, margin: u32) -> Option<CellBox> {
+    let (mut a, mut b) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
+    for i in 0..8 {
+        let p = Vec3::new(
+            if i & 1 == 0 { lo.x } else { hi.x },
+            if i & 2 == 0 { lo.y } else { hi.y },
+            if i & 4 == 0 { lo.z } else { hi.z },
+        );
+        let g = (local_from_world.transform_point3(p) + 0.5) * res.as_vec3();
+        (a, b) = (a.min(g), b.max(g));
+    }
+    if !(a.is_finite() && b.is_finite()) {
+        return None;
+    }
+    let a = (a.floor() - margin as f32).max(Vec3::ZERO);
+    let b = (b.floor() + margin as f32).min(res.as_vec3() - 1.0);
+    if a.cmpgt(b).any() {
+        return None;
+    }
+    Some((a.as_uvec3(), b.as_uvec3()))
+}
+
+/// The world-space bounds of a box of cells of a `res` grid.
+fn world_box(world_from_local: Mat4, res: UVec3, cells: CellBox) -> (Vec3, Vec3) {
+    let (mut lo, mut hi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
+    for i in 0..8 {
+        let g = Vec3::new(
+            if i & 1 == 0 { cells.0.x as f32 } else { cells.1.x as f32 + 1.0 },
+            if i & 2 == 0 { cells.0.y as f32 } else { cells.1.y as f32 + 1.0 },
+            if i & 4 == 0 { cells.0.z as f32 } else { cells.1.z as f32 + 1.0 },
+        );
+        let p = world_from_local.transform_point3(g / res.as_vec3() - 0.5);
+        (lo, hi) = (lo.min(p), hi.max(p));
+    }
+    let pad = (hi - lo).max_element() * 1e-4;
+    (lo - pad, hi + pad)
 }
 
 fn cell_index(c: UVec3, res: UVec3) -> usize {
     (c.x + res.x * (c.y + res.y * c.z)) as usize
 }
 
-/// Per cell: mean albedo (rgb) and the surface area in the cell relative to one cell face (a, ≤ 1).
-pub fn voxelize_albedo(snapshot: &SceneSnapshot, local_from_world: Mat4, resolution: UVec3) -> Vec<Vec4> {
-    let res = resolution.max(UVec3::ONE);
-    let cells = (res.x * res.y * res.z) as usize;
-    let mut sum = vec![Vec4::ZERO; cells];
-    let to_grid = |p: Vec3| (local_from_world.transform_point3(p) + 0.5) * res.as_vec3();
-    let mut scene_sum = Vec4::ZERO;
+fn in_box(c: UVec3, cells: CellBox) -> bool {
+    c.cmpge(cells.0).all() && c.cmple(cells.1).all()
+}
 
-    for t in 0..snapshot.triangle_count() as u32 {
-        let [a, b, c] = snapshot.triangle(t).map(to_grid);
+/// Adds `albedo × area` of the stratified points of every triangle that land in `cells` to `sums`.
+fn albedo_sums(snapshot: &SceneSnapshot, local_from_world: Mat4, res: UVec3, cells: CellBox, sums: &mut [Vec4]) {
+    let world_from_local = local_from_world.inverse();
+    let (lo, hi) = world_box(world_from_local, res, cells);
+    let to_grid = |p: Vec3| (local_from_world.transform_point3(p) + 0.5) * res.as_vec3();
+    for (t, tri) in snapshot.triangles_overlapping(lo, hi) {
+        let [a, b, c] = tri.map(to_grid);
         let area = 0.5 * (b - a).cross(c - a).length();
         if !area.is_finite() || area <= 0.0 {
             continue;
         }
         let albedo = snapshot.triangle_albedo(t);
-        scene_sum += (albedo * area).extend(area);
         // About four points per cell of area, stratified over the triangle.
         let side = ((area * 4.0).sqrt().ceil() as u32).clamp(1, 16);
         let weight = area / (side * side) as f32;
@@ -94,12 +206,20 @@ pub fn voxelize_albedo(snapshot: &SceneSnapshot, local_from_world: Mat4, resolut
                 if p.cmplt(Vec3::ZERO).any() || p.cmpge(res.as_vec3()).any() {
                     continue;
                 }
-                sum[cell_index(p.as_uvec3().min(res - 1), res)] += (albedo * weight).extend(weight);
+                let cell = p.as_uvec3().min(res - 1);
+                if in_box(cell, cells) {
+                    sums[cell_index(cell, res)] += (albedo * weight).extend(weight);
+                }
             }
         }
     }
+}
 
-    let mut out: Vec<Vec4> = sum
+/// Per cell: mean albedo (rgb) and the surface area in the cell relative to one cell face (a, ≤ 1), from
+/// [`GeometryVoxels::albedo_sums`]; empty cells take their neighbours' mean (three dilation passes), then
+/// the volume's mean albedo.
+fn finish_albedo(sums: &[Vec4], res: UVec3) -> Vec<Vec4> {
+    let mut out: Vec<Vec4> = sums
         .iter()
         .map(|s| if s.w > 0.0 { (s.truncate() / s.w).extend(s.w.min(1.0)) } else { Vec4::ZERO })
         .collect();
@@ -133,7 +253,8 @@ pub fn voxelize_albedo(snapshot: &SceneSnapshot, local_from_world: Mat4, resolut
             }
         }
     }
-    let fallback = if scene_sum.w > 0.0 { scene_sum.truncate() / scene_sum.w } else { Vec3::splat(0.5) };
+    let total: Vec4 = sums.iter().copied().sum();
+    let fallback = if total.w > 0.0 { total.truncate() / total.w } else { Vec3::splat(0.5) };
     for v in &mut out {
         if v.truncate() == Vec3::ZERO {
             *v = fallback.extend(0.0);
@@ -142,55 +263,69 @@ pub fn voxelize_albedo(snapshot: &SceneSnapshot, local_from_world: Mat4, resolut
     out
 }
 
+/// Per cell: mean albedo (rgb) and the surface area in the cell relative to one cell face (a, ≤ 1).
+pub fn voxelize_albedo(snapshot: &SceneSnapshot, local_from_world: Mat4, resolution: UVec3) -> Vec<Vec4> {
+    let res = resolution.max(UVec3::ONE);
+    let mut sums = vec![Vec4::ZERO; (res.x * res.y * res.z) as usize];
+    albedo_sums(snapshot, local_from_world, res, (UVec3::ZERO, res - 1), &mut sums);
+    finish_albedo(&sums, res)
+}
+
+fn validity_directions() -> Vec<Vec3> {
+    use crate::sampling::uniform_sphere;
+    use bevy::math::Vec2;
+    // Fixed, well-spread directions (a Fibonacci-like lattice over the sphere).
+    (0..VALIDITY_RAYS)
+        .map(|i| uniform_sphere(Vec2::new((i as f32 + 0.5) / VALIDITY_RAYS as f32, (i as f32 * 0.618_034).fract())))
+        .collect()
+}
+
+/// 1 when hint `c` lies outside solid geometry, 0 when most directions first meet the back of a surface.
+fn hint_valid(snapshot: &SceneSnapshot, world_from_local: Mat4, res: UVec3, c: UVec3) -> f32 {
+    thread_local! {
+        static DIRECTIONS: Vec<Vec3> = validity_directions();
+    }
+    let local = (c.as_vec3() + 0.5) / res.as_vec3() - 0.5;
+    let p = world_from_local.transform_point3(local);
+    let (mut back, mut hits) = (0, 0);
+    DIRECTIONS.with(|directions| {
+        for &d in directions {
+            if let Some(hit) = snapshot.intersect(p, d, 0.0, f32::INFINITY) {
+                hits += 1;
+                if snapshot.attributes(hit.triangle).geometric_normal.dot(d) > 0.0 {
+                    back += 1;
+                }
+            }
+        }
+    });
+    // Inside: most of the rays that hit anything hit a back face, and most rays hit.
+    let inside = hits * 2 > VALIDITY_RAYS && back * 2 > hits;
+    if inside { 0.0 } else { 1.0 }
+}
+
 /// Per hint: 1 when it lies outside solid geometry, 0 when most directions first meet the back of a
 /// surface (the hint is inside a box or a thick wall).
 pub fn hint_validity(snapshot: &SceneSnapshot, world_from_local: Mat4, resolution: UVec3) -> Vec<f32> {
-    use crate::sampling::uniform_sphere;
-    use bevy::math::Vec2;
     let res = resolution.max(UVec3::ONE);
-    // Fixed, well-spread directions (a Fibonacci-like lattice over the sphere).
-    let directions: Vec<Vec3> = (0..VALIDITY_RAYS)
-        .map(|i| {
-            let u = Vec2::new((i as f32 + 0.5) / VALIDITY_RAYS as f32, (i as f32 * 0.618_034).fract());
-            uniform_sphere(u)
-        })
-        .collect();
     let mut out = Vec::with_capacity((res.x * res.y * res.z) as usize);
     for z in 0..res.z {
         for y in 0..res.y {
             for x in 0..res.x {
-                let local = (UVec3::new(x, y, z).as_vec3() + 0.5) / res.as_vec3() - 0.5;
-                let p = world_from_local.transform_point3(local);
-                let mut back = 0;
-                let mut hits = 0;
-                for &d in &directions {
-                    if let Some(hit) = snapshot.intersect(p, d, 0.0, f32::INFINITY) {
-                        hits += 1;
-                        if snapshot.attributes(hit.triangle).geometric_normal.dot(d) > 0.0 {
-                            back += 1;
-                        }
-                    }
-                }
-                // Inside: most of the rays that hit anything hit a back face, and most rays hit.
-                let inside = hits * 2 > VALIDITY_RAYS && back * 2 > hits;
-                out.push(if inside { 0.0 } else { 1.0 });
+                out.push(hint_valid(snapshot, world_from_local, res, UVec3::new(x, y, z)));
             }
         }
     }
     out
 }
 
-/// Conservative surface voxelisation: a bit per voxel of the grid `resolution` over the unit cube, set
-/// where a triangle overlaps the voxel.
-pub fn voxelize_occupancy(snapshot: &SceneSnapshot, local_from_world: Mat4, resolution: UVec3) -> Vec<u32> {
-    let res = resolution.max(UVec3::ONE);
-    let words = ((res.x * res.y * res.z) as usize).div_ceil(32);
-    let mut bits = vec![0u32; words];
+/// Sets the bits of the voxels in `voxels` that a triangle overlaps.
+fn occupancy_bits(snapshot: &SceneSnapshot, local_from_world: Mat4, res: UVec3, voxels: CellBox, bits: &mut [u32]) {
+    let (lo_w, hi_w) = world_box(local_from_world.inverse(), res, voxels);
     let to_grid = |p: Vec3| (local_from_world.transform_point3(p) + 0.5) * res.as_vec3();
-    for t in 0..snapshot.triangle_count() as u32 {
-        let tri = snapshot.triangle(t).map(to_grid);
-        let lo = tri[0].min(tri[1]).min(tri[2]).floor().max(Vec3::ZERO);
-        let hi = tri[0].max(tri[1]).max(tri[2]).floor().min(res.as_vec3() - 1.0);
+    for (_, tri) in snapshot.triangles_overlapping(lo_w, hi_w) {
+        let tri = tri.map(to_grid);
+        let lo = tri[0].min(tri[1]).min(tri[2]).floor().max(voxels.0.as_vec3());
+        let hi = tri[0].max(tri[1]).max(tri[2]).floor().min(voxels.1.as_vec3());
         if lo.cmpgt(hi).any() {
             continue;
         }
@@ -207,6 +342,15 @@ pub fn voxelize_occupancy(snapshot: &SceneSnapshot, local_from_world: Mat4, reso
             }
         }
     }
+}
+
+/// Conservative surface voxelisation: a bit per voxel of the grid `resolution` over the unit cube, set
+/// where a triangle overlaps the voxel.
+pub fn voxelize_occupancy(snapshot: &SceneSnapshot, local_from_world: Mat4, resolution: UVec3) -> Vec<u32> {
+    let res = resolution.max(UVec3::ONE);
+    let words = ((res.x * res.y * res.z) as usize).div_ceil(32);
+    let mut bits = vec![0u32; words];
+    occupancy_bits(snapshot, local_from_world, res, (UVec3::ZERO, res - 1), &mut bits);
     bits
 }
 
@@ -295,6 +439,36 @@ pub fn triangle_box_overlap(centre: Vec3, half: Vec3, tri: [Vec3; 3]) -> bool {
 mod tests {
     use super::*;
     use crate::scene::{InputTriangle, SnapshotMaterial};
+
+    #[test]
+    fn an_update_after_a_move_equals_a_full_voxelisation() {
+        use crate::scene::{MeshGeometry, SceneSnapshot};
+        use bevy::math::Affine3A;
+        use std::sync::Arc;
+        let cube = Arc::new(MeshGeometry::new(
+            crate::scene::mesh_local_triangles(&bevy::prelude::Mesh::from(bevy::prelude::Cuboid::new(0.6, 0.6, 0.6))).unwrap(),
+        ));
+        let red = SnapshotMaterial { diffuse: Vec3::new(0.8, 0.1, 0.1), ..SnapshotMaterial::DEFAULT_GREY };
+        let mut scene = SceneSnapshot::build(wall(-1.9, 0).into_iter().chain(wall(1.9, 0)), vec![SnapshotMaterial::DEFAULT_GREY, red], vec![], vec![]);
+        scene.set_instance(100, cube.clone(), Affine3A::from_translation(Vec3::new(-0.8, 0.0, 0.0)), 1);
+        scene.set_instance(101, cube, Affine3A::from_translation(Vec3::new(0.9, 0.5, 0.3)), 1);
+        scene.commit();
+        let volume = Mat4::from_scale(Vec3::splat(4.0));
+        let res = UVec3::splat(8);
+        let before = voxelize(&scene, volume, res);
+        scene.set_instance_transform(100, Affine3A::from_translation(Vec3::new(0.2, -0.7, 0.4)));
+        scene.commit();
+        let updated = voxelize_update(&scene, volume, res, &before, &scene.last_change.dirty);
+        let full = voxelize(&scene, volume, res);
+        assert_ne!(before.occupancy, full.occupancy, "the move must change something");
+        assert_eq!(updated.occupancy, full.occupancy);
+        for (a, b) in updated.albedo_validity.iter().zip(&full.albedo_validity) {
+            assert!((a.truncate() - b.truncate()).abs().max_element() < 1e-4, "{a} vs {b}");
+        }
+        // Validity is redone near the change only; a far hint whose rays the moved box now shades may differ.
+        let differing = updated.albedo_validity.iter().zip(&full.albedo_validity).filter(|(a, b)| a.w != b.w).count();
+        assert!(differing * 50 <= full.albedo_validity.len(), "{differing} hints differ in validity");
+    }
 
     fn wall(x: f32, material: u32) -> Vec<InputTriangle> {
         let q = [
