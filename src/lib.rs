@@ -86,7 +86,7 @@ impl Plugin for DiffuseGiPlugin {
         if self.deferred_by_default {
             app.insert_resource(DefaultOpaqueRendererMethod::deferred());
         }
-        app.init_resource::<DiffuseGiWarnings>();
+        app.init_resource::<DiffuseGiWarnings>().init_resource::<MainThreadCost>();
         app.register_type::<light::GiLight>().add_plugins((
             scene::SceneSnapshotPlugin,
             rsm::RsmPlugin,
@@ -95,6 +95,24 @@ impl Plugin for DiffuseGiPlugin {
             vpl::VplPlugin,
             ssbc::SsbcPlugin,
         ));
+    }
+}
+
+/// Milliseconds of main-thread work the plugin did in the last frame, by part (0 where a part had
+/// nothing to do): what a game's frame pays on the CPU for GI. Reports and the headless renderer read it.
+#[derive(Resource, Clone, Copy, Debug, Default, PartialEq)]
+pub struct MainThreadCost {
+    /// Updating the scene snapshot (moved, added and removed meshes; changed materials and textures).
+    pub snapshot_ms: f32,
+    /// Re-voxelising Radiance Hints volumes.
+    pub voxels_ms: f32,
+    /// Regenerating the VPLs (random walks over the snapshot).
+    pub vpl_ms: f32,
+}
+
+impl MainThreadCost {
+    pub fn total_ms(&self) -> f32 {
+        self.snapshot_ms + self.voxels_ms + self.vpl_ms
     }
 }
 

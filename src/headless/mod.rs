@@ -112,6 +112,8 @@ struct Headless {
     frame_starts: Vec<Instant>,
     /// The Radiance Hints settings of the spawned volume, and its transform.
     spawned_rh: Option<(RadianceHintsVolume, Transform)>,
+    /// Main-thread milliseconds of the plugin's CPU work, per rendered frame.
+    main_thread_ms: Vec<f32>,
 }
 
 /// Renders as `options` say and returns the images and the sidecar, without writing anything.
@@ -226,6 +228,17 @@ fn build_app(options: &HeadlessOptions, outcome: Arc<Mutex<Outcome>>) -> App {
     if options.method == HeadlessMethod::Reference {
         app.init_resource::<SceneSnapshot>();
     }
+    if options.scene == StandardScene::Dynamic {
+        // Paused until rendering begins, so the captured pose does not depend on how long loading took.
+        app.insert_resource(crate::scenes::DynamicScene {
+            frame: options.pose_frame,
+            animate_light: options.animate_light,
+            moving_meshes: options.animate_meshes as usize,
+            stop_at: options.stop_animation_at,
+            extra_triangles: options.extra_triangles,
+            paused: true,
+        });
+    }
     if let Some(path) = &options.dump_volume {
         app.insert_resource(crate::radiance_hints::dump::RhVolumeDump { path: path.clone() });
     }
@@ -240,9 +253,11 @@ fn build_app(options: &HeadlessOptions, outcome: Arc<Mutex<Outcome>>) -> App {
         render_start: None,
         frame_starts: Vec::new(),
         spawned_rh: None,
+        main_thread_ms: Vec::new(),
     })
     .add_systems(Startup, setup)
-    .add_systems(Update, (attach_camera, spawn_rh_volume, animate_lights, switch_method, drive).chain());
+    .add_systems(Update, (attach_camera, spawn_rh_volume, animate_lights, switch_method, drive).chain())
+    .add_systems(Last, track_dynamic_scene);
     app
 }
 
@@ -343,6 +358,7 @@ fn drive(
     lights: Query<LightRow>,
     diagnostics: Res<DiagnosticsStore>,
     adapter: Option<Res<RenderAdapterInfo>>,
+    dynamic: Option<Res<crate::scenes::DynamicScene>>,
 ) {
     let finish = |headless: &mut Headless, exit: &mut MessageWriter<AppExit>, error: Option<String>| {
         let failed = error.is_some();
@@ -401,7 +417,7 @@ fn drive(
                 let result = trace_reference(&headless.options, snapshot.as_deref(), transform, projection, &exposure);
                 let error = match result {
                     Ok((image, extras, settings)) => {
-                        let mut map = sidecar(&headless, &exposure, &lights, &diagnostics, adapter.as_deref());
+                        let mut map = sidecar(&headless, &exposure, &lights, &diagnostics, adapter.as_deref(), dynamic.as_deref());
                         map.insert("reference".into(), settings);
                         let mut outcome = headless.outcome.lock().expect("outcome lock");
                         outcome.image = Some(image);
@@ -433,7 +449,7 @@ fn drive(
             }
             let frames = headless.phase_frames;
             let seconds = headless.render_start.map_or(0.0, |s| s.elapsed().as_secs_f64());
-            let mut map = sidecar(&headless, &exposure, &lights, &diagnostics, adapter.as_deref());
+            let mut map = sidecar(&headless, &exposure, &lights, &diagnostics, adapter.as_deref(), dynamic.as_deref());
             map.insert(
                 "wall_seconds".into(),
                 json!({ "frames_after_settling": frames, "render_including_settling": seconds,
@@ -443,6 +459,7 @@ fn drive(
             let intervals: Vec<f64> =
                 headless.frame_starts.windows(2).map(|w| (w[1] - w[0]).as_secs_f64() * 1e3).collect();
             map.insert("frame_ms".into(), json!(intervals));
+            map.insert("main_thread_ms".into(), json!(headless.main_thread_ms));
             let mut outcome = headless.outcome.lock().expect("outcome lock");
             outcome.image = Some(image);
             outcome.sidecar = map;
@@ -481,7 +498,7 @@ fn animate_lights(
     mut origins: Local<std::collections::HashMap<Entity, Vec3>>,
     mut step: Local<u32>,
 ) {
-    if !headless.options.animate_light {
+    if !headless.options.animate_light || headless.options.scene == StandardScene::Dynamic {
         return;
     }
     *step += 1;
@@ -554,6 +571,7 @@ fn sidecar(
     lights: &Query<LightRow>,
     diagnostics: &DiagnosticsStore,
     adapter: Option<&RenderAdapterInfo>,
+    dynamic: Option<&crate::scenes::DynamicScene>,
 ) -> serde_json::Map<String, Value> {
     let o = &headless.options;
     let lights: Vec<Value> = lights
@@ -592,6 +610,9 @@ fn sidecar(
         json!({ "ev100": exposure.ev100, "multiplier": exposure.exposure() }),
     );
     map.insert("lights".into(), Value::Array(lights));
+    if let Some(scene) = dynamic {
+        map.insert("dynamic_pose_frame".into(), json!(scene.frame));
+    }
     if let Some((rh, transform)) = &headless.spawned_rh {
         let (rh, _) = rh.sanitized();
         map.insert(
@@ -670,4 +691,22 @@ fn trace_reference(
     _: &Exposure,
 ) -> Result<(HdrImage, Vec<(&'static str, HdrImage)>, Value), String> {
     Err("--method reference needs the `reference` feature".into())
+}
+
+/// Starts the `dynamic` scene's clock when rendering begins, and records the plugin's main-thread cost.
+fn track_dynamic_scene(
+    mut headless: ResMut<Headless>,
+    scene: Option<ResMut<crate::scenes::DynamicScene>>,
+    cost: Res<crate::MainThreadCost>,
+) {
+    if headless.phase != Phase::Rendering {
+        return;
+    }
+    if let Some(mut scene) = scene
+        && scene.paused
+    {
+        scene.paused = false;
+    }
+    let ms = cost.total_ms();
+    headless.main_thread_ms.push(ms);
 }

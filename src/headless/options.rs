@@ -112,6 +112,14 @@ pub struct HeadlessOptions {
     /// Move every GI light a little each frame (a 2 cm circle), so that the RSM and the GI volume are
     /// recomputed every frame as they are for a moving light: the dynamic-light timing case.
     pub animate_light: bool,
+    /// `dynamic` scene: how many of its objects move (from object 0; 0–10).
+    pub animate_meshes: u32,
+    /// `dynamic` scene: the pose frame it starts at (the ground truth of frame K is `--pose-frame K`).
+    pub pose_frame: f32,
+    /// `dynamic` scene: the pose frame where the motion stops.
+    pub stop_animation_at: Option<f32>,
+    /// `dynamic` scene: static triangles added along the back wall.
+    pub extra_triangles: u32,
     /// GI methods: after this many frames of the `--frames`, switch the camera to another method (the
     /// run-time switch a game makes from its settings menu). The new method's settings come from the
     /// same `--preset` and overrides.
@@ -141,6 +149,10 @@ impl Default for HeadlessOptions {
             debug_view: None,
             dump_volume: None,
             animate_light: false,
+            animate_meshes: 0,
+            pose_frame: 0.0,
+            stop_animation_at: None,
+            extra_triangles: 0,
             switch_method: None,
         }
     }
@@ -161,9 +173,10 @@ usage: headless [--scene cornell|PATH.glb] [--size WxH] [--frames N] [--out FILE
                 [--vpl-ism-points N] [--vpl-ism-bias F] [--ssbc-steps N] [--ssbc-solid-angle SR]
                 [--ssbc-levels N] [--ssbc-blur on|off]
                 [--half-res] [--gi-output composite|irradiance-volume] [--debug-view VIEW]
-                [--animate-light] [--switch-method FRAMES:rh|vpl]
+                [--animate-light] [--animate-meshes N] [--pose-frame K] [--stop-animation-at K]
+                [--extra-triangles N] [--switch-method FRAMES:rh|vpl]
 
-  --scene          a standard scene name or a glTF 2.0 file            (default cornell)
+  --scene          cornell, cellar, sponza_like, dynamic or a glTF 2.0 file (default cornell)
   --size           image size in pixels, 1..=8192 each                  (default 256x256)
   --frames         frames to render once the scene shows, before the image is kept (default 8)
   --out            the linear float EXR to write; FILE.json goes beside it (default out/render.exr)
@@ -188,7 +201,12 @@ usage: headless [--scene cornell|PATH.glb] [--size WxH] [--frames N] [--out FILE
   --gi-output      composite (per pixel, default) or irradiance-volume (Bevy's light probe)
   --debug-view     indirect, irradiance, hint-grid, rsm-flux, rsm-normal, rsm-position,
                    vpl-clamped, vpl-compensation or vpl-positions
-  --animate-light  move the GI lights on a 2 cm circle every frame (times the dynamic-light case)
+  --animate-light  dynamic scene: orbit its light one step per rendered frame; other scenes: move the
+                   GI lights on a 2 cm circle every frame (times the dynamic-light case)
+  --animate-meshes dynamic scene: move its first N objects (0..=10) one step per rendered frame
+  --pose-frame     dynamic scene: the pose frame to start at (default 0; the ground truth of a pose)
+  --stop-animation-at  dynamic scene: stop the motion at this pose frame
+  --extra-triangles    dynamic scene: add about N static triangles (spheres along the back wall)
   --switch-method  after FRAMES of the --frames, switch the camera to the given GI method";
 
 fn value<'a>(flag: &str, args: &mut impl Iterator<Item = &'a str>) -> Result<&'a str, String> {
@@ -332,6 +350,12 @@ pub fn parse_args<'a>(args: impl IntoIterator<Item = &'a str>) -> Result<Headles
             "--dump-volume" => options.dump_volume = Some(PathBuf::from(value(flag, &mut args)?)),
             "--half-res" => options.half_resolution = true,
             "--animate-light" => options.animate_light = true,
+            "--animate-meshes" => options.animate_meshes = number(flag, value(flag, &mut args)?, 0, 10)?,
+            "--pose-frame" => options.pose_frame = number(flag, value(flag, &mut args)?, 0.0, 1.0e6)?,
+            "--stop-animation-at" => {
+                options.stop_animation_at = Some(number(flag, value(flag, &mut args)?, 0.0, 1.0e6)?)
+            }
+            "--extra-triangles" => options.extra_triangles = number(flag, value(flag, &mut args)?, 0, 5_000_000)?,
             "--switch-method" => {
                 let text = value(flag, &mut args)?;
                 let (frames, method) = text
@@ -384,6 +408,13 @@ pub fn parse_args<'a>(args: impl IntoIterator<Item = &'a str>) -> Result<Headles
         return Err("--indirect-only measures the per-pixel reconstruction; render the IrradianceVolume output \
                     in full and subtract a --method none render"
             .into());
+    }
+    let dynamic_only = options.animate_meshes > 0
+        || options.pose_frame != 0.0
+        || options.stop_animation_at.is_some()
+        || options.extra_triangles > 0;
+    if dynamic_only && options.scene != StandardScene::Dynamic {
+        return Err("--animate-meshes, --pose-frame, --stop-animation-at and --extra-triangles need --scene dynamic".into());
     }
     if !out_given {
         let scene = match &options.scene {

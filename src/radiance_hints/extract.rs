@@ -129,10 +129,13 @@ pub(crate) fn update_geometry_voxels(
     mut commands: Commands,
     snapshot: Option<Res<SceneSnapshot>>,
     volumes: Query<(Entity, &RadianceHintsVolume, &GlobalTransform, Option<&RhGeometryVoxels>)>,
+    mut cost: ResMut<crate::MainThreadCost>,
 ) {
+    let start = std::time::Instant::now();
     let Some(snapshot) = snapshot else {
         return;
     };
+    let mut worked = false;
     for (entity, volume, transform, voxels) in &volumes {
         let (settings, _) = volume.sanitized();
         let matrix = volume_matrix(transform);
@@ -151,12 +154,14 @@ pub(crate) fn update_geometry_voxels(
             }
             _ => voxelize(&snapshot, matrix, settings.resolution),
         };
+        worked = true;
         commands.entity(entity).insert(RhGeometryVoxels {
             generation: voxels.map_or(1, |v| v.generation + 1),
             key,
             data: Arc::new(data),
         });
     }
+    cost.voxels_ms = if worked { start.elapsed().as_secs_f32() * 1000.0 } else { 0.0 };
 }
 
 /// Creates (or removes) the IrradianceVolume probes of every volume, depending on whether an active

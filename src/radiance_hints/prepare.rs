@@ -316,6 +316,10 @@ pub struct RhVolumeGpu {
     pub age: u32,
     /// Whether the volume runs inject/bounce/blend this frame.
     pub update_this_frame: bool,
+    /// This frame's update is an amortised one (the inputs changed this frame, as they do every frame
+    /// while a light or mesh moves): injection plus a single bounce gathered from the displayed field,
+    /// so bounces accumulate over frames instead of all running every frame.
+    pub motion_update: bool,
     /// Dynamic offsets: `[0]` for injection, blending, export and sampling; `[k]` for extra bounce `k`.
     pub uniform_offsets: Vec<u32>,
     pub export: Option<Handle<Image>>,
@@ -439,6 +443,7 @@ impl RhVolumeGpu {
             first_update: true,
             age: 0,
             update_this_frame: false,
+            motion_update: false,
             uniform_offsets: Vec::new(),
             export: None,
             pipelines: None,
@@ -523,7 +528,12 @@ pub(crate) fn prepare_rh_volumes(
             voxel_generation,
         };
         // §8 occlusion depends on the camera: recompute every frame.
-        if gpu.built_from.as_ref() != Some(&key) || s.depth_occlusion.is_some() {
+        let changed = gpu.built_from.as_ref() != Some(&key) || s.depth_occlusion.is_some();
+        // A change to a volume that already shows a field: amortise (see `motion_update`). A new volume
+        // or new settings get the full update.
+        let same_volume = gpu.built_from.as_ref().is_some_and(|b| b.settings == key.settings && b.transform == key.transform);
+        gpu.motion_update = changed && same_volume && !gpu.first_update && s.extra_bounces > 0;
+        if changed {
             gpu.updates_left = convergence_updates(s.temporal_blend).max(s.refinement_updates + 1);
             gpu.age = 0;
             gpu.built_from = Some(key);

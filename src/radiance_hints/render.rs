@@ -138,7 +138,16 @@ fn update_volumes(
                     timestamp_writes: None,
                 });
                 let span = diagnostics.pass_span(&mut pass, "diffuse_gi/rh_bounce");
-                for k in 1..=v.settings.extra_bounces {
+                if v.motion_update {
+                    // One bounce gathered from the displayed field (all bounces so far, a frame old):
+                    // repeated every frame, the field converges to injection plus every bounce.
+                    pass.set_pipeline(bounce);
+                    pass.set_bind_group(0, &groups.bounce[1].0, &[]);
+                    pass.set_bind_group(1, &groups.sample_result, &[v.uniform_offsets[1]]);
+                    pass.set_bind_group(2, &groups.occupancy, &[]);
+                    pass.dispatch_workgroups(v.workgroups, 1, 1);
+                }
+                for k in (1..=v.settings.extra_bounces).filter(|_| !v.motion_update) {
                     let offset = v.uniform_offsets[k as usize];
                     let (output, sample) = &groups.bounce[(k % 2) as usize];
                     pass.set_pipeline(bounce);

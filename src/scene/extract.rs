@@ -102,6 +102,7 @@ fn update_snapshot_geometry(
     mut snapshot: ResMut<SceneSnapshot>,
     mut cache: Local<SnapshotCache>,
     mut timings: ResMut<SnapshotTimings>,
+    mut cost: ResMut<crate::MainThreadCost>,
     all: Query<MeshEntity>,
     changed: Query<Entity, (With<Mesh3d>, ChangedMesh)>,
     skinned: Query<(Entity, &SkinnedMesh)>,
@@ -285,6 +286,7 @@ fn update_snapshot_geometry(
         timings.geometry_ms = 0.0;
     }
     timings.instances_updated = updated;
+    cost.snapshot_ms = timings.geometry_ms;
     timings.waiting = (cache.waiting.len() + cache.missing_textures.len()) as u32;
 }
 

@@ -5,6 +5,7 @@
 //! * [`StandardScene::Cellar`]: two rooms and a door, lit from one, seen from the other (`cellar.rs`).
 //! * [`StandardScene::SponzaLike`]: a 12 m atrium with columns, sunlit through a roof opening
 //!   (`sponza_like.rs`).
+//! * [`StandardScene::Dynamic`]: a room with ten moving objects and an orbiting light (`dynamic.rs`).
 //! * [`StandardScene::Gltf`]: any glTF 2.0 file, loaded through Bevy's glTF loader (meshes,
 //!   `StandardMaterial`s, `KHR_lights_punctual` lights, the first camera). Bevy spawns glTF lights without
 //!   shadows; here they get shadows on and a [`GiLight`], so that a wall blocks light in the game as it
@@ -16,6 +17,7 @@
 
 pub mod cellar;
 pub mod cornell;
+pub mod dynamic;
 pub mod sponza_like;
 
 use std::path::{Path, PathBuf};
@@ -31,6 +33,7 @@ use crate::light::GiLight;
 
 pub use cellar::{CELLAR_EV100, cellar_snapshot, spawn_cellar};
 pub use cornell::{CORNELL_EV100, cornell_snapshot, spawn_cornell};
+pub use dynamic::{DYNAMIC_EV100, DynamicScene, dynamic_pose, spawn_dynamic};
 pub use sponza_like::{SPONZA_EV100, spawn_sponza_like, sponza_like_snapshot};
 
 /// A scene the crate knows how to build.
@@ -44,13 +47,15 @@ pub enum StandardScene {
     /// A 12 m atrium with columns, lit only by the sun through a roof opening: mostly light that bounced
     /// twice or more.
     SponzaLike,
+    /// A room with moving objects and an orbiting light, posed by a frame clock ([`DynamicScene`]).
+    Dynamic,
     /// A glTF 2.0 file (`.glb` or `.gltf`).
     Gltf(PathBuf),
 }
 
 impl StandardScene {
     /// Names accepted by [`StandardScene::parse`] besides file paths.
-    pub const NAMES: &'static [&'static str] = &["cornell", "cellar", "sponza_like"];
+    pub const NAMES: &'static [&'static str] = &["cornell", "cellar", "sponza_like", "dynamic"];
 
     /// A scene name, or a path to a `.glb`/`.gltf` file (which must exist).
     pub fn parse(text: &str) -> Result<Self, String> {
@@ -58,6 +63,7 @@ impl StandardScene {
             "cornell" => Ok(Self::Cornell),
             "cellar" => Ok(Self::Cellar),
             "sponza_like" => Ok(Self::SponzaLike),
+            "dynamic" => Ok(Self::Dynamic),
             path if path.ends_with(".glb") || path.ends_with(".gltf") => {
                 let p = Path::new(path);
                 if !p.is_file() {
@@ -78,6 +84,7 @@ impl StandardScene {
             Self::Cornell => "cornell".into(),
             Self::Cellar => "cellar".into(),
             Self::SponzaLike => "sponza_like".into(),
+            Self::Dynamic => "dynamic".into(),
             Self::Gltf(path) => path.display().to_string(),
         }
     }
@@ -157,6 +164,7 @@ impl Plugin for StandardScenesPlugin {
     fn build(&self, app: &mut App) {
         app.init_resource::<SceneStatus>()
             .add_systems(Update, poll_gltf.run_if(resource_exists::<PendingGltf>))
+            .add_systems(Update, dynamic::animate_dynamic_scene.run_if(resource_exists::<DynamicScene>))
             .add_observer(prepare_loaded_gltf);
     }
 }
@@ -189,6 +197,10 @@ pub fn spawn_standard_scene(
         }
         StandardScene::SponzaLike => {
             spawn_sponza_like(commands, meshes, materials, ev100.unwrap_or(SPONZA_EV100));
+            commands.insert_resource(SceneStatus::Ready);
+        }
+        StandardScene::Dynamic => {
+            spawn_dynamic(commands, meshes, materials, ev100.unwrap_or(DYNAMIC_EV100));
             commands.insert_resource(SceneStatus::Ready);
         }
         StandardScene::Gltf(path) => {

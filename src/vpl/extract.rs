@@ -8,7 +8,7 @@ use bevy::render::Extract;
 
 use super::VplSettings;
 use super::generate::{
-    EmissionGuide, IsmPoint, PilotHits, Vpl, WalkSettings, automatic_bound, generate_vpls, ism_points, pilot_hits, surface_area,
+    EmissionGuide, IsmPoint, PilotHits, Vpl, WalkSettings, automatic_bound, generate_vpls, ism_positions, ism_samples, pilot_hits, surface_area,
 };
 use crate::camera::{DiffuseGi, GiDebugView, GiMethod};
 use crate::ssbc::SsbcRequest;
@@ -39,6 +39,8 @@ pub struct VplSet {
     pub surface_area: f32,
     key: Option<VplKey>,
     points_key: Option<(u64, u32)>,
+    /// Where the points sit (triangle and barycentrics), by layout generation, count and seed.
+    samples: Option<((u64, u32, u32), Arc<Vec<super::generate::IsmSample>>)>,
     /// The lights' pilot rays, and what they were traced from.
     pilots: Option<((u64, u64, Vec<Entity>), Vec<PilotHits>)>,
 }
@@ -107,7 +109,10 @@ pub(crate) fn update_vpls(
     snapshot: Option<Res<SceneSnapshot>>,
     cameras: Query<(Entity, &Camera, &DiffuseGi, Option<&VplSettings>, &GlobalTransform)>,
     gi_lights: Query<Entity, With<GiLight>>,
+    mut cost: ResMut<crate::MainThreadCost>,
 ) {
+    let start = std::time::Instant::now();
+    cost.vpl_ms = 0.0;
     let Some(settings) = first_vpl_camera(cameras.iter().map(|(e, c, gi, s, _)| (e, c, gi, s))) else {
         if set.key.is_some() {
             *set = VplSet { generation: set.generation + 1, points_generation: set.points_generation + 1, ..default() };
@@ -157,9 +162,16 @@ pub(crate) fn update_vpls(
         set.key = Some(key);
     }
     let count = (settings.ism_points.saturating_mul(POINT_RUNS)).min(MAX_POINTS);
+    // New points after a layout change (O(triangles)); after moves only, the same points follow their
+    // triangles (O(points)).
+    let samples_key = (snapshot.layout_generation, count, settings.seed);
+    if set.samples.as_ref().is_none_or(|(k, _)| *k != samples_key) {
+        set.samples = Some((samples_key, Arc::new(ism_samples(&snapshot, count, settings.seed))));
+    }
     let points_key = (snapshot.geometry_generation, count);
     if set.points_key != Some(points_key) {
-        set.points = Arc::new(ism_points(&snapshot, count, settings.seed));
+        let samples = set.samples.as_ref().map(|(_, s)| s.clone()).unwrap_or_default();
+        set.points = Arc::new(ism_positions(&snapshot, &samples));
         set.points_generation += 1;
         set.points_key = Some(points_key);
         // New points: the shadow maps must be splatted again.
@@ -170,6 +182,7 @@ pub(crate) fn update_vpls(
         set.generation += 1;
     }
     set.settings = settings;
+    cost.vpl_ms = start.elapsed().as_secs_f32() * 1000.0;
 }
 
 /// The VPL set in the render world (the `Arc`s are shared, not copied).

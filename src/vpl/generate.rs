@@ -372,6 +372,33 @@ pub struct IsmPoint {
 /// sequence over the area CDF), in a shuffled order so that any contiguous run of them is itself spread
 /// over the whole scene: each VPL's imperfect shadow map splats its own run (Ritschel et al. 2008, §3.1).
 pub fn ism_points(snapshot: &SceneSnapshot, count: u32, seed: u32) -> Vec<IsmPoint> {
+    ism_positions(snapshot, &ism_samples(snapshot, count, seed))
+}
+
+/// Where an ISM point sits: a global triangle and barycentrics, so that points follow moving meshes
+/// without drawing them again ([`ism_positions`], O(points)).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct IsmSample {
+    pub triangle: u32,
+    pub s: f32,
+    pub r: f32,
+}
+
+/// The world positions of `samples` in the snapshot now (its layout must be the one they were drawn in).
+pub fn ism_positions(snapshot: &SceneSnapshot, samples: &[IsmSample]) -> Vec<IsmPoint> {
+    let n = snapshot.triangle_count() as u32;
+    samples
+        .iter()
+        .filter(|p| p.triangle < n)
+        .map(|p| {
+            let [a, b, c] = snapshot.triangle(p.triangle);
+            IsmPoint { position: a + (b - a) * p.s + (c - a) * p.r }
+        })
+        .collect()
+}
+
+/// The samples behind [`ism_points`]: O(triangles) for the area CDF.
+pub fn ism_samples(snapshot: &SceneSnapshot, count: u32, seed: u32) -> Vec<IsmSample> {
     let n = snapshot.triangle_count();
     if n == 0 || count == 0 {
         return Vec::new();
@@ -386,19 +413,18 @@ pub fn ism_points(snapshot: &SceneSnapshot, count: u32, seed: u32) -> Vec<IsmPoi
         return Vec::new();
     }
     let stream = SobolStream::new(seed as u64, 0x15A);
-    let mut points: Vec<(u32, IsmPoint)> = (0..count)
+    let mut points: Vec<(u32, IsmSample)> = (0..count)
         .map(|i| {
             let u = stream.vertex_4d(i, 0);
             let target = (i as f64 + u[0] as f64) / count as f64 * total;
             let t = cdf.partition_point(|c| *c < target).min(n - 1);
-            let [a, b, c] = snapshot.triangle(t as u32);
             let (mut s, mut r) = (u[1], u[2]);
             if s + r > 1.0 {
                 (s, r) = (1.0 - s, 1.0 - r);
             }
             // Shuffle key: a hash of the index.
             let key = (i.wrapping_mul(0x9E37_79B9) ^ seed).rotate_left(13).wrapping_mul(0x85EB_CA6B);
-            (key, IsmPoint { position: a + (b - a) * s + (c - a) * r })
+            (key, IsmSample { triangle: t as u32, s, r })
         })
         .collect();
     points.sort_by_key(|(key, _)| *key);
