@@ -94,6 +94,17 @@ struct Frames {
     latest: Option<HdrImage>,
     /// Covered pixel counts of the newest readbacks.
     coverage: Vec<usize>,
+    /// Readbacks that contained a NaN or an infinity.
+    non_finite: u32,
+}
+
+/// Where the headless renderer stands, for systems added through [`run_with`].
+#[derive(Resource, Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct HeadlessClock {
+    /// Whether the measured frames have begun (the scene shows and has settled).
+    pub rendering: bool,
+    /// Frames since rendering began.
+    pub frame: u32,
 }
 
 #[derive(Resource)]
@@ -118,10 +129,22 @@ struct Headless {
 
 /// Renders as `options` say and returns the images and the sidecar, without writing anything.
 pub fn run(options: &HeadlessOptions) -> Result<HeadlessReport, String> {
+    run_with(options, |_| {})
+}
+
+/// [`run`] with `customise` applied to the app before it starts: tests and benchmarks add systems that
+/// change the world while it renders (reading [`HeadlessClock`] to know when).
+pub fn run_with(options: &HeadlessOptions, customise: impl FnOnce(&mut App)) -> Result<HeadlessReport, String> {
     let outcome = Arc::new(Mutex::new(Outcome::default()));
     let started = Instant::now();
     let mut app = build_app(options, outcome.clone());
+    customise(&mut app);
+    let frames = app.world().resource::<Headless>().frames.clone();
     app.run();
+    let non_finite = frames.lock().map_or(0, |f| f.non_finite);
+    if non_finite > 0 {
+        return Err(format!("{non_finite} frames read back contained NaN or infinite values"));
+    }
     drop(app);
     let mut outcome = std::mem::take(&mut *outcome.lock().map_err(|_| "the render thread panicked")?);
     if let Some(error) = outcome.error {
@@ -257,6 +280,7 @@ fn build_app(options: &HeadlessOptions, outcome: Arc<Mutex<Outcome>>) -> App {
     })
     .add_systems(Startup, setup)
     .add_systems(Update, (attach_camera, spawn_rh_volume, animate_lights, switch_method, drive).chain())
+    .init_resource::<HeadlessClock>()
     .add_systems(Last, track_dynamic_scene);
     app
 }
@@ -359,6 +383,7 @@ fn drive(
     diagnostics: Res<DiagnosticsStore>,
     adapter: Option<Res<RenderAdapterInfo>>,
     dynamic: Option<Res<crate::scenes::DynamicScene>>,
+    snapshot_timings: Res<crate::scene::SnapshotTimings>,
 ) {
     let finish = |headless: &mut Headless, exit: &mut MessageWriter<AppExit>, error: Option<String>| {
         let failed = error.is_some();
@@ -412,6 +437,18 @@ fn drive(
             if is_reference {
                 // Two frames let the snapshot and the camera's projection catch up with the spawned scene.
                 if headless.phase_frames < 2 {
+                    return;
+                }
+                // Every mesh, material and texture the scene uses must be in the snapshot before tracing.
+                if snapshot_timings.waiting > 0 {
+                    if headless.phase_frames > MAX_LOADING_FRAMES {
+                        let message = format!(
+                            "scene {}: {} meshes or textures did not load within {MAX_LOADING_FRAMES} frames",
+                            headless.options.scene.name(),
+                            snapshot_timings.waiting
+                        );
+                        finish(&mut headless, &mut exit, Some(message));
+                    }
                     return;
                 }
                 let result = trace_reference(&headless.options, snapshot.as_deref(), transform, projection, &exposure);
@@ -520,6 +557,9 @@ fn spawn_readback(commands: &mut Commands, headless: &Headless) {
             let covered = image.pixels.iter().filter(|p| p[3] > 0.5).count();
             let mut frames = frames.lock().expect("frames lock");
             frames.received += 1;
+            if image.has_non_finite() {
+                frames.non_finite += 1;
+            }
             frames.coverage.push(covered);
             frames.latest = Some(image);
         });
@@ -698,10 +738,12 @@ fn track_dynamic_scene(
     mut headless: ResMut<Headless>,
     scene: Option<ResMut<crate::scenes::DynamicScene>>,
     cost: Res<crate::MainThreadCost>,
+    mut clock: ResMut<HeadlessClock>,
 ) {
     if headless.phase != Phase::Rendering {
         return;
     }
+    *clock = HeadlessClock { rendering: true, frame: clock.frame + clock.rendering as u32 };
     if let Some(mut scene) = scene
         && scene.paused
     {

@@ -57,7 +57,7 @@ pub(crate) struct SnapshotCache {
     meshes: HashMap<AssetId<Mesh>, Arc<MeshGeometry>>,
     materials: HashMap<AssetId<StandardMaterial>, u32>,
     textures: HashMap<AssetId<Image>, u32>,
-    /// Images whose texture slot still holds the white placeholder (not loaded, or undecodable).
+    /// Images whose texture slot holds the white placeholder because they are not loaded yet.
     missing_textures: HashSet<AssetId<Image>>,
     /// Per instance: its mesh and material assets.
     instances: HashMap<Entity, (AssetId<Mesh>, Option<AssetId<StandardMaterial>>)>,
@@ -156,7 +156,8 @@ fn update_snapshot_geometry(
         let id = event_id(event);
         if let Some(&slot) = cache.textures.get(&id) {
             let texture = assets.images.get(id).and_then(|image| decode_texture(image, id, &mut cache.warned_textures));
-            if texture.is_some() {
+            // Waiting only while the image is not loaded; an unreadable one stays white (warned once).
+            if assets.images.get(id).is_some() {
                 cache.missing_textures.remove(&id);
             } else {
                 cache.missing_textures.insert(id);
@@ -327,7 +328,7 @@ fn material_with_textures(
             return slot;
         }
         let texture = assets.images.get(id).and_then(|image| decode_texture(image, id, &mut cache.warned_textures));
-        if texture.is_none() {
+        if assets.images.get(id).is_none() {
             cache.missing_textures.insert(id);
         }
         snapshot.textures.push(texture.unwrap_or_else(SnapshotTexture::white));
@@ -877,5 +878,63 @@ mod incremental_tests {
         // Old and new bounds are dirty.
         assert_eq!(s.last_change.dirty.len(), 2);
         assert_eq!(app.world().resource::<SnapshotTimings>().instances_updated, 1);
+    }
+}
+
+#[cfg(test)]
+mod skinning_tests {
+    use super::*;
+    use bevy::asset::RenderAssetUsages;
+    use bevy::mesh::VertexAttributeValues;
+
+    /// A 1 m × 2 m vertical strip, its top vertices bound to joint 1, its bottom ones to joint 0.
+    fn strip() -> Mesh {
+        let positions = vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 2.0, 0.0], [0.0, 2.0, 0.0]];
+        let joints = vec![[0u16, 0, 0, 0], [0, 0, 0, 0], [1, 0, 0, 0], [1, 0, 0, 0]];
+        let weights = vec![[1.0f32, 0.0, 0.0, 0.0]; 4];
+        Mesh::new(PrimitiveTopology::TriangleList, RenderAssetUsages::default())
+            .with_inserted_attribute(Mesh::ATTRIBUTE_POSITION, positions)
+            .with_inserted_attribute(Mesh::ATTRIBUTE_JOINT_INDEX, VertexAttributeValues::Uint16x4(joints))
+            .with_inserted_attribute(Mesh::ATTRIBUTE_JOINT_WEIGHT, weights)
+            .with_inserted_indices(Indices::U32(vec![0, 1, 2, 0, 2, 3]))
+    }
+
+    #[test]
+    fn a_skinned_mesh_enters_the_snapshot_in_its_current_pose() {
+        let mut app = App::new();
+        app.add_plugins((MinimalPlugins, AssetPlugin::default(), TransformPlugin, SceneSnapshotPlugin))
+            .init_asset::<Mesh>()
+            .init_asset::<StandardMaterial>()
+            .init_asset::<Image>()
+            .init_asset::<SkinnedMeshInverseBindposes>()
+            .init_resource::<SceneSnapshot>();
+        let world = app.world_mut();
+        let mesh = world.resource_mut::<Assets<Mesh>>().add(strip());
+        // Joint 1 sits at y = 2 in the bind pose.
+        let bindposes = world
+            .resource_mut::<Assets<SkinnedMeshInverseBindposes>>()
+            .add(SkinnedMeshInverseBindposes::from(vec![Mat4::IDENTITY, Mat4::from_translation(Vec3::new(0.0, -2.0, 0.0))]));
+        let root = world.spawn(Transform::IDENTITY).id();
+        let tip = world.spawn(Transform::from_xyz(0.0, 2.0, 0.0)).id();
+        world.spawn((
+            Mesh3d(mesh),
+            Transform::from_xyz(5.0, 0.0, 0.0), // ignored by skinning, as in Bevy
+            InheritedVisibility::VISIBLE,
+            SkinnedMesh { inverse_bindposes: bindposes, joints: vec![root, tip] },
+        ));
+        app.update();
+        let top = |app: &App| {
+            let s = app.world().resource::<SceneSnapshot>();
+            s.triangles().flat_map(|(_, t)| t).fold(f32::NEG_INFINITY, |m, p| m.max(p.y))
+        };
+        assert!((top(&app) - 2.0).abs() < 1e-5, "bind pose: top at {}", top(&app));
+        // Raise the tip joint by a metre: the top edge follows, the bottom stays.
+        app.world_mut().get_mut::<Transform>(tip).unwrap().translation.y = 3.0;
+        app.update();
+        assert!((top(&app) - 3.0).abs() < 1e-5, "posed: top at {}", top(&app));
+        let s = app.world().resource::<SceneSnapshot>();
+        let bottom = s.triangles().flat_map(|(_, t)| t).fold(f32::INFINITY, |m, p| m.min(p.y));
+        assert!(bottom.abs() < 1e-5);
+        assert_eq!(s.triangle_count(), 2);
     }
 }
