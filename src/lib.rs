@@ -52,7 +52,7 @@ use bevy::shader::Shader;
 
 /// Everything a user needs in scope.
 pub mod prelude {
-    pub use crate::DiffuseGiPlugin;
+    pub use crate::{DiffuseGiPlugin, MainThreadCost};
     pub use crate::camera::{DiffuseGi, GiDebugView, GiMethod, GiOutput};
     pub use crate::light::GiLight;
     pub use crate::radiance_hints::{DepthOcclusion, RadianceHintsVolume};

@@ -92,6 +92,8 @@ struct Frames {
     received: u32,
     /// The newest frame.
     latest: Option<HdrImage>,
+    /// The frame before it.
+    previous: Option<HdrImage>,
     /// Covered pixel counts of the newest readbacks.
     coverage: Vec<usize>,
     /// Readbacks that contained a NaN or an infinity.
@@ -477,6 +479,7 @@ fn drive(
                 return;
             }
             let mut image = frames.latest.take().expect("a readback arrived");
+            let previous = frames.previous.take();
             drop(frames);
             if headless.options.indirect_only && headless.options.method == HeadlessMethod::None {
                 // Bevy's direct light adds no indirect light: keep only the coverage.
@@ -498,6 +501,15 @@ fn drive(
             map.insert("frame_ms".into(), json!(intervals));
             map.insert("main_thread_ms".into(), json!(headless.main_thread_ms));
             let mut outcome = headless.outcome.lock().expect("outcome lock");
+            if let Some(mut previous) = previous.filter(|p| p.width == image.width && p.height == image.height) {
+                if headless.options.indirect_only && headless.options.method == HeadlessMethod::None {
+                    for p in &mut previous.pixels {
+                        p[..3].fill(0.0);
+                    }
+                }
+                // The frame before the kept one: frame-to-frame stability.
+                outcome.extra_images.push(("previous", previous));
+            }
             outcome.image = Some(image);
             outcome.sidecar = map;
             drop(outcome);
@@ -561,7 +573,7 @@ fn spawn_readback(commands: &mut Commands, headless: &Headless) {
                 frames.non_finite += 1;
             }
             frames.coverage.push(covered);
-            frames.latest = Some(image);
+            frames.previous = frames.latest.replace(image);
         });
 }
 

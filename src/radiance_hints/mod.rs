@@ -81,6 +81,12 @@
 //! the blend and the refinement need; otherwise last frame's field is reused and only the per-pixel
 //! reconstruction and composite run. With the §8 depth occlusion the volume updates every frame.
 //!
+//! While the inputs change every frame (a moving light or mesh), each update is amortised: the injection
+//! plus one extra bounce gathered from the displayed field (which already holds every bounce so far, a
+//! frame old), so bounces accumulate over frames instead of all running every frame; when the motion
+//! stops, full updates and the refinement take over (`docs/dynamic.md` measures lag and error). A moved
+//! mesh re-voxelises only the cells its old and new bounds touch ([`voxelize::voxelize_update`]).
+//!
 //! # Known issues
 //! * Cells must be smaller than the rooms they light and under about twice the thickness of the walls
 //!   that must stop light: the medium preset's 0.5 m cells in the 8 m cellar blur the light across door
@@ -89,8 +95,8 @@
 //! * A pixel within a voxel of a perpendicular surface (a wall meeting the ceiling) reads the field at one
 //!   point instead of its hemisphere: junctions show a faint darker crease rather than light from the
 //!   next room.
-//! * The voxelisation and the RSMs see meshes on the CPU snapshot ([`crate::scene`]): skinned and morphed
-//!   meshes enter them in their bind pose.
+//! * The voxelisation and the RSMs see meshes on the CPU snapshot ([`crate::scene`]): skinned meshes enter
+//!   them in their current pose, morphed meshes in their base shape.
 //! * lavapipe's timestamps of compute passes do not bracket their work: `rh_inject` and `rh_bounce` GPU
 //!   times are meaningless there (render passes are fine).
 

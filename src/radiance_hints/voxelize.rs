@@ -73,7 +73,7 @@ pub fn voxelize(snapshot: &SceneSnapshot, world_from_local: Mat4, resolution: UV
 /// `previous` brought up to date after geometry changed inside the world-space boxes `dirty`: only the
 /// cells those boxes touch are voxelised again (the albedo dilation, O(cells), runs over the whole grid).
 /// Albedo and occupancy equal [`voxelize`] of the new scene when `previous` was voxelised from the old
-/// one; validity is redone for the hints in and next to the boxes only (a solid that moved can only put
+/// one; validity is redone for the hints in the boxes only (a solid that moved can only put
 /// hints inside itself there), so a far hint whose validity rays the change shades keeps its old value.
 pub fn voxelize_update(
     snapshot: &SceneSnapshot,
@@ -100,6 +100,9 @@ pub fn voxelize_update(
                 }
             }
             albedo_sums(snapshot, local_from_world, res, cells, &mut out.albedo_sums);
+        }
+        // Validity: only hints inside the box can have been put inside (or let out of) the moved solid.
+        if let Some(cells) = cell_box(local_from_world, res, lo, hi, 0) {
             validity_boxes.push(cells);
         }
         if let Some(voxels) = cell_box(local_from_world, occupancy_res, lo, hi, 1) {

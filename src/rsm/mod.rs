@@ -25,9 +25,11 @@
 //! triangle), and skinned or morphed meshes appear in their bind pose.
 //!
 //! # Cost
-//! Nothing without a `GiLight`. A face is re-rendered only when its light, the scene geometry, the atlas
-//! size or (directional lights) the volumes it is fitted to change; otherwise last frame's RSM is reused.
-//! Each render is one draw of every snapshot triangle at `rsm_resolution²`.
+//! Nothing without a `GiLight`. A face is re-rendered only when its light, the atlas size or (directional
+//! lights) the volumes it is fitted to change, or when geometry changed inside its frustum (the old and
+//! new bounds of a moved, added or removed mesh, [`frustum_overlaps`]); otherwise last frame's RSM is
+//! reused. A moved mesh rewrites only its own range of the vertex buffer; adding or removing one uploads
+//! the buffer again. Each render is one draw of every snapshot triangle at `rsm_resolution²`.
 
 pub(crate) mod extract;
 

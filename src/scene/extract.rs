@@ -31,7 +31,7 @@ pub enum SceneSnapshotSystems {
 
 impl Plugin for SceneSnapshotPlugin {
     fn build(&self, app: &mut App) {
-        app.init_resource::<SnapshotTimings>().add_systems(
+        app.init_resource::<SnapshotTimings>().init_resource::<crate::MainThreadCost>().add_systems(
             PostUpdate,
             (
                 // Apps without meshes, materials or images (no renderer) have no geometry to snapshot.

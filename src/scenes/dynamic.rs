@@ -78,6 +78,21 @@ pub struct DynamicScene {
     pub paused: bool,
 }
 
+/// Triangles of `Sphere::mesh().ico(level)`: `20 (level + 1)²` (each face split `level + 1` times per edge).
+pub fn ico_triangles(level: u32) -> u32 {
+    20 * (level + 1) * (level + 1)
+}
+
+/// Triangles of the room, its objects and about `extra` static ones, as [`spawn_dynamic`] builds them.
+pub fn dynamic_triangles(extra: u32) -> u32 {
+    let room = dynamic_room().len() as u32 * 12 + ico_triangles(7) + (OBJECTS as u32 - 1) * 12;
+    if extra == 0 {
+        return room;
+    }
+    let per = ico_triangles(if extra < 20_480 { 6 } else { 31 });
+    room + (extra as f32 / per as f32).round().max(1.0) as u32 * per
+}
+
 /// Marks a moving object of the dynamic scene.
 #[derive(Component, Clone, Copy, Debug)]
 pub struct DynamicObject(pub usize);
@@ -104,7 +119,7 @@ pub fn spawn_dynamic(commands: &mut Commands, meshes: &mut Assets<Mesh>, materia
     super::spawn_boxes(commands, meshes, materials, &dynamic_room(), &[WALL, FLOOR, RED, GREEN], "dynamic");
     let pose = dynamic_pose(0.0);
     let colors: Vec<_> = OBJECT_COLORS.iter().map(|c| materials.add(super::cornell::diffuse_material(*c))).collect();
-    let sphere = meshes.add(Sphere::new(0.3).mesh().ico(3).expect("ico sphere"));
+    let sphere = meshes.add(Sphere::new(0.3).mesh().ico(7).expect("ico sphere"));
     let cube = meshes.add(Cuboid::new(0.35, 0.35, 0.35));
     for (i, centre) in pose.objects.iter().enumerate() {
         commands.spawn((
@@ -117,11 +132,12 @@ pub fn spawn_dynamic(commands: &mut Commands, meshes: &mut Assets<Mesh>, materia
     }
     commands.queue(|world: &mut World| {
         let scene = world.get_resource_or_insert_with(DynamicScene::default).clone();
-        // Static spheres along the back wall: ico(5) spheres hold 20 480 triangles, ico(3) 1 280.
+        // Static spheres along the back wall, of 980 triangles (ico 6) or 20 480 (ico 31) each.
         if scene.extra_triangles == 0 {
             return;
         }
-        let (level, per) = if scene.extra_triangles < 20_480 { (3, 1_280) } else { (5, 20_480) };
+        let level = if scene.extra_triangles < 20_480 { 6 } else { 31 };
+        let per = ico_triangles(level);
         let count = (scene.extra_triangles as f32 / per as f32).round().max(1.0) as u32;
         let mesh = world.resource_mut::<Assets<Mesh>>().add(Sphere::new(0.1).mesh().ico(level).expect("ico sphere"));
         let grey = world.resource_mut::<Assets<StandardMaterial>>().add(super::cornell::diffuse_material(Vec3::splat(0.6)));

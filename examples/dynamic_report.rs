@@ -1,0 +1,283 @@
+//! Measures what motion costs and how the bounced light keeps up with it: the numbers of
+//! `docs/dynamic.md`.
+//!
+//! ```text
+//! cargo run --release --example dynamic_report -- [--section NAME]... [--rounds N] [--docs docs/dynamic.md]
+//! ```
+//! Sections: `cost` (frame-time ratios to the frame without GI, at 256² and 512²), `triangles` (one moving
+//! mesh in scenes of 1 k, 50 k and 500 k triangles), `snapshot` (the scene snapshot's main-thread update,
+//! without a renderer), `accuracy` (error while a light and a box move, against the ground truth of each
+//! frame's pose, and the recovery after the motion stops), `stability` (frame-to-frame change). Each prints
+//! a Markdown table; with `--docs FILE` it also replaces the text between `<!-- dynamic_report:NAME -->`
+//! and `<!-- /dynamic_report:NAME -->`. Renders run one after another in this process on whatever Vulkan
+//! device wgpu picks (lavapipe on CI machines); times are medians of the last frames of each run, quoted as
+//! ratios to the frame without GI measured in the same round.
+
+#[path = "common/mod.rs"]
+mod common;
+
+use std::process::ExitCode;
+
+use bevy::prelude::*;
+use bevy_diffuse_gi::camera::GiMethod;
+use bevy_diffuse_gi::hdr_image::HdrImage;
+use bevy_diffuse_gi::headless::{self, HeadlessMethod, HeadlessOptions, HeadlessReport};
+use bevy_diffuse_gi::metrics;
+use bevy_diffuse_gi::scene::{SceneSnapshot, SceneSnapshotPlugin, SnapshotTimings};
+use bevy_diffuse_gi::scenes::StandardScene;
+
+const SECTIONS: &[&str] = &["cost", "triangles", "snapshot", "accuracy", "stability"];
+const USAGE: &str =
+    "usage: dynamic_report [--section cost|triangles|snapshot|accuracy|stability]... [--rounds N] [--docs FILE.md]";
+/// Frames of a timed run and the intervals at its end that the medians use.
+const TIMED_RUN: u32 = 24;
+const TIMED_FRAMES: usize = 12;
+const METHODS: [GiMethod; 2] = [GiMethod::RadianceHints, GiMethod::Vpl];
+
+fn main() -> ExitCode {
+    match run() {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(message) => {
+            eprintln!("dynamic_report: {message}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run() -> Result<(), String> {
+    let args = common::parse_report_args(SECTIONS, USAGE)?;
+    if std::env::var_os("WGPU_BACKEND").is_none() {
+        // SAFETY: set before any render thread exists.
+        unsafe { std::env::set_var("WGPU_BACKEND", "vulkan") };
+    }
+    for section in &args.sections {
+        let table = match section.as_str() {
+            "cost" => cost(args.rounds)?,
+            "triangles" => triangles(args.rounds)?,
+            "snapshot" => snapshot(),
+            "accuracy" => accuracy()?,
+            "stability" => stability()?,
+            _ => unreachable!(),
+        };
+        println!("\n## {section}\n\n{table}");
+        if let Some(docs) = &args.docs {
+            common::replace_section(docs, "dynamic_report", section, &table)?;
+        }
+    }
+    Ok(())
+}
+
+fn render(options: &HeadlessOptions) -> Result<HeadlessReport, String> {
+    eprint!(".");
+    headless::run(options)
+}
+
+fn dynamic(method: HeadlessMethod, size: u32) -> HeadlessOptions {
+    HeadlessOptions {
+        scene: StandardScene::Dynamic,
+        method,
+        size: UVec2::splat(size),
+        frames: TIMED_RUN,
+        ..Default::default()
+    }
+}
+
+/// Median main-thread milliseconds of the plugin over the last frames of a run.
+fn main_ms(report: &HeadlessReport) -> f64 {
+    let v: Vec<f64> =
+        report.sidecar["main_thread_ms"].as_array().map(|a| a.iter().filter_map(|v| v.as_f64()).collect()).unwrap_or_default();
+    common::median(&v[v.len().saturating_sub(TIMED_FRAMES)..])
+}
+
+/// Motion cases: (name, light moves, meshes moving).
+const CASES: [(&str, bool, u32); 4] = [("still", false, 0), ("light moving", true, 0), ("one mesh moving", false, 1), ("ten meshes moving", false, 10)];
+
+fn cost(rounds: usize) -> Result<String, String> {
+    let mut out = String::from(
+        "| size | method | case | frame (ms) | × frame without GI | main thread (ms) |\n|---|---|---|---|---|---|\n",
+    );
+    for size in [256u32, 512] {
+        let mut none = Vec::new();
+        let mut rows: Vec<Vec<(f64, f64)>> = vec![Vec::new(); METHODS.len() * CASES.len()];
+        for _ in 0..rounds {
+            none.push(common::frame_ms(&render(&dynamic(HeadlessMethod::None, size))?, TIMED_FRAMES));
+            for (m, method) in METHODS.iter().enumerate() {
+                for (c, (_, light, meshes)) in CASES.iter().enumerate() {
+                    let mut o = dynamic(HeadlessMethod::Gi(*method), size);
+                    o.animate_light = *light;
+                    o.animate_meshes = *meshes;
+                    // Still: long enough that the volume has converged and stopped updating.
+                    if !*light && *meshes == 0 {
+                        o.frames = 48;
+                    }
+                    let r = render(&o)?;
+                    rows[m * CASES.len() + c].push((common::frame_ms(&r, TIMED_FRAMES), main_ms(&r)));
+                }
+            }
+        }
+        let base = common::median(&none);
+        out += &format!("| {size}² | none (Bevy alone) | still | {base:.0} | 1.0 | – |\n");
+        for (m, method) in METHODS.iter().enumerate() {
+            for (c, (case, ..)) in CASES.iter().enumerate() {
+                let row = &rows[m * CASES.len() + c];
+                let frame = common::median(&row.iter().map(|r| r.0).collect::<Vec<_>>());
+                let main = common::median(&row.iter().map(|r| r.1).collect::<Vec<_>>());
+                out += &format!("| {size}² | {} | {case} | {frame:.0} | {:.1} | {main:.2} |\n", method.name(), frame / base);
+            }
+        }
+    }
+    Ok(out)
+}
+
+fn triangles(rounds: usize) -> Result<String, String> {
+    let mut out = String::from(
+        "| scene triangles | none (ms) | rh still (ms) | rh, one mesh moving (ms) | × none | moving − still (ms) | main thread (ms) |\n\
+         |---|---|---|---|---|---|---|\n",
+    );
+    for extra in [1_000u32, 50_000, 500_000] {
+        let (mut none, mut still, mut moving, mut main) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        for _ in 0..rounds {
+            let mut o = dynamic(HeadlessMethod::None, 256);
+            o.extra_triangles = extra;
+            none.push(common::frame_ms(&render(&o)?, TIMED_FRAMES));
+            o.method = HeadlessMethod::Gi(GiMethod::RadianceHints);
+            o.frames = 48;
+            still.push(common::frame_ms(&render(&o)?, TIMED_FRAMES));
+            o.frames = TIMED_RUN;
+            o.animate_meshes = 1;
+            let r = render(&o)?;
+            moving.push(common::frame_ms(&r, TIMED_FRAMES));
+            main.push(main_ms(&r));
+        }
+        let (n, s, m) = (common::median(&none), common::median(&still), common::median(&moving));
+        out += &format!(
+            "| {} | {n:.0} | {s:.0} | {m:.0} | {:.1} | {:.0} | {:.2} |\n",
+            bevy_diffuse_gi::scenes::dynamic::dynamic_triangles(extra),
+            m / n,
+            m - s,
+            common::median(&main)
+        );
+    }
+    Ok(out)
+}
+
+/// The snapshot alone (no renderer): one 1 280-triangle sphere moving among static spheres.
+fn snapshot() -> String {
+    let mut out = String::from(
+        "| static triangles | instances | full build (ms) | one mesh moving: update (ms, median of 50 frames) |\n|---|---|---|---|\n",
+    );
+    // 980, 61 440 and 491 520 static triangles (ico 6 once, ico 31 three and 24 times).
+    for (level, count) in [(6u32, 1u32), (31, 3), (31, 24)] {
+        let mut app = App::new();
+        app.add_plugins((MinimalPlugins, AssetPlugin::default(), TransformPlugin, SceneSnapshotPlugin))
+            .init_asset::<Mesh>()
+            .init_asset::<StandardMaterial>()
+            .init_asset::<Image>()
+            .init_asset::<bevy::mesh::skinning::SkinnedMeshInverseBindposes>()
+            .init_resource::<SceneSnapshot>();
+        let world = app.world_mut();
+        let static_mesh = world.resource_mut::<Assets<Mesh>>().add(Sphere::new(0.1).mesh().ico(level).unwrap());
+        let moving_mesh = world.resource_mut::<Assets<Mesh>>().add(Sphere::new(0.3).mesh().ico(7).unwrap());
+        let material = world.resource_mut::<Assets<StandardMaterial>>().add(StandardMaterial::default());
+        for k in 0..count {
+            world.spawn((Mesh3d(static_mesh.clone()), MeshMaterial3d(material.clone()), Transform::from_xyz(k as f32 * 0.3, 0.0, 0.0), InheritedVisibility::VISIBLE));
+        }
+        let mover = world
+            .spawn((Mesh3d(moving_mesh), MeshMaterial3d(material), Transform::from_xyz(0.0, 1.0, 0.0), InheritedVisibility::VISIBLE))
+            .id();
+        let started = std::time::Instant::now();
+        app.update();
+        let build = started.elapsed().as_secs_f64() * 1e3;
+        let mut updates = Vec::new();
+        for frame in 0..50 {
+            app.world_mut().get_mut::<Transform>(mover).unwrap().translation.x = frame as f32 * 0.05;
+            app.update();
+            updates.push(app.world().resource::<SnapshotTimings>().geometry_ms as f64);
+        }
+        let s = app.world().resource::<SceneSnapshot>();
+        out += &format!(
+            "| {} | {} | {build:.1} | {:.3} |\n",
+            s.triangle_count() - 1_280,
+            s.instances().len(),
+            common::median(&updates)
+        );
+    }
+    out
+}
+
+fn indirect(method: GiMethod, size: u32) -> HeadlessOptions {
+    HeadlessOptions { indirect_only: true, ..dynamic(HeadlessMethod::Gi(method), size) }
+}
+
+/// The ground truth of pose `frame` (light and object 0 moved that far).
+fn truth(frame: f32, size: u32) -> Result<HdrImage, String> {
+    let o = HeadlessOptions {
+        method: HeadlessMethod::Reference,
+        indirect_only: true,
+        spp: 256,
+        pose_frame: frame,
+        animate_light: true,
+        animate_meshes: 1,
+        ..dynamic(HeadlessMethod::Reference, size)
+    };
+    Ok(render(&o)?.image)
+}
+
+fn accuracy() -> Result<String, String> {
+    // The light orbits and object 0 moves from pose 0; the motion stops at pose 30.
+    const SIZE: u32 = 128;
+    const STOP: f32 = 30.0;
+    let mut out = String::from(
+        "| method | frame | pose | block rel. RMSE vs that pose's truth | energy | blocks > 50 % off |\n|---|---|---|---|---|---|\n",
+    );
+    let truth_stop = truth(STOP, SIZE)?;
+    let truth_mid = truth(15.0, SIZE)?;
+    for method in METHODS {
+        // While moving: frame 15 of the motion, against the truth of the pose it shows.
+        let mut o = indirect(method, SIZE);
+        o.animate_light = true;
+        o.animate_meshes = 1;
+        o.stop_animation_at = Some(STOP);
+        o.frames = 15;
+        let r = render(&o)?;
+        let pose = r.sidecar["dynamic_pose_frame"].as_f64().unwrap_or(f64::NAN);
+        let m = metrics::compare(&r.image, &truth_mid).map_err(|e| e.to_string())?;
+        out += &format!("| {} | 15, moving | {pose:.0} (truth: 15) | {:.3} | {:.3} | {:.1} % |\n", method.name(), m.block_relative_rmse, m.energy_ratio, 100.0 * m.blocks_over_half_off);
+        // After the stop: how many frames until the error is back to the still scene's.
+        for after in [1u32, 4, 8, 16, 32] {
+            o.frames = STOP as u32 + after;
+            let r = render(&o)?;
+            let m = metrics::compare(&r.image, &truth_stop).map_err(|e| e.to_string())?;
+            out += &format!("| {} | {after} after the stop | {STOP:.0} | {:.3} | {:.3} | {:.1} % |\n", method.name(), m.block_relative_rmse, m.energy_ratio, 100.0 * m.blocks_over_half_off);
+        }
+        // The still scene in the stop pose, for reference.
+        let mut still = indirect(method, SIZE);
+        still.pose_frame = STOP;
+        still.animate_light = true;
+        still.animate_meshes = 1;
+        still.stop_animation_at = Some(STOP);
+        still.frames = 48;
+        let r = render(&still)?;
+        let m = metrics::compare(&r.image, &truth_stop).map_err(|e| e.to_string())?;
+        out += &format!("| {} | still in that pose (48 frames) | {STOP:.0} | {:.3} | {:.3} | {:.1} % |\n", method.name(), m.block_relative_rmse, m.energy_ratio, 100.0 * m.blocks_over_half_off);
+    }
+    Ok(out)
+}
+
+fn stability() -> Result<String, String> {
+    let mut out = String::from(
+        "| method | case | block rel. RMSE between the last two frames | energy ratio |\n|---|---|---|---|\n",
+    );
+    for method in METHODS {
+        for (case, meshes, frames) in [("still, converged", 0u32, 48u32), ("one object moving", 1, 24)] {
+            let mut o = indirect(method, 128);
+            o.animate_meshes = meshes;
+            o.frames = frames;
+            let r = render(&o)?;
+            let previous = r.extra_images.iter().find(|(n, _)| *n == "previous").map(|(_, i)| i).ok_or("no previous frame")?;
+            let m = metrics::compare(&r.image, previous).map_err(|e| e.to_string())?;
+            out += &format!("| {} | {case} | {:.4} | {:.4} |\n", method.name(), m.block_relative_rmse, m.energy_ratio);
+        }
+    }
+    Ok(out)
+}
