@@ -109,8 +109,9 @@ pub struct HeadlessOptions {
     /// GI cameras: a debug view instead of the image (`--indirect-only` selects `IndirectOnly`).
     #[serde(skip)]
     pub debug_view: Option<crate::camera::GiDebugView>,
-    /// Move every GI light a little each frame (a 2 cm circle), so that the RSM and the GI volume are
-    /// recomputed every frame as they are for a moving light: the dynamic-light timing case.
+    /// `dynamic` scene: orbit its light one step per rendered frame. Other scenes: move every GI light on
+    /// a 2 cm circle each frame, so that the RSM and the GI volume are recomputed every frame as they are
+    /// for a moving light (the dynamic-light timing case).
     pub animate_light: bool,
     /// `dynamic` scene: how many of its objects move (from object 0; 0–10).
     pub animate_meshes: u32,
