@@ -6,7 +6,7 @@ mod common;
 
 use std::path::PathBuf;
 
-use bevy_diffuse_gi::headless::{self, HeadlessMethod, HeadlessOptions};
+use bevy_diffuse_gi::headless::{self, HeadlessOptions};
 use bevy_diffuse_gi::metrics;
 use bevy_diffuse_gi::scenes::StandardScene;
 use common::{check, render};
@@ -52,16 +52,7 @@ fn gltf_direct_light_matches_the_path_tracer() {
         ..Default::default()
     })
     .image;
-    let traced = render(&HeadlessOptions {
-        scene: room(),
-        method: HeadlessMethod::Reference,
-        spp: 1,
-        max_bounces: Some(1),
-        burley_direct: true,
-        pixel_centers: true,
-        ..Default::default()
-    });
-    let (_, traced) = traced.extra_images.into_iter().find(|(n, _)| *n == "direct").expect("direct image");
+    let traced = common::traced_direct(room());
     let m = metrics::compare(&bevy, &traced).expect("comparable");
     // Measured on lavapipe: block relative RMSE 0.047, energy ratio 1.026 (a spot and a point light).
     check(
@@ -93,16 +84,7 @@ fn textured_partly_metallic_gltf_has_the_same_colours_in_the_tracer_as_in_bevy()
     let test = "textured_partly_metallic_gltf_colours";
     let scene = StandardScene::Gltf(asset("textured_chair.gltf"));
     let bevy = render(&HeadlessOptions { scene: scene.clone(), frames: 1, ..Default::default() }).image;
-    let traced = render(&HeadlessOptions {
-        scene,
-        method: HeadlessMethod::Reference,
-        spp: 1,
-        max_bounces: Some(1),
-        burley_direct: true,
-        pixel_centers: true,
-        ..Default::default()
-    });
-    let (_, traced) = traced.extra_images.into_iter().find(|(n, _)| *n == "direct").expect("direct image");
+    let traced = common::traced_direct(scene);
     let sums = |image: &bevy_diffuse_gi::hdr_image::HdrImage| {
         let mut s = [0.0f64; 3];
         for (i, p) in image.pixels.iter().enumerate() {

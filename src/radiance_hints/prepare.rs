@@ -365,20 +365,17 @@ pub struct RhVolumesGpu {
 }
 
 /// The weight of an update in the displayed field: everything on the very first update; the temporal
-/// blend on the [`convergence_updates`] that follow a change (and on every update without refinement),
-/// after which the field from before the change weighs under 1 %; then `1/(k+2)` on the `k`-th
-/// refinement update, which makes the field the running mean of the converged field and the updates
-/// after it.
+/// blend on the update that follows a change (every update while the inputs change each frame, and every
+/// update without refinement); then `1/k` on the `k`-th still update, which makes the field the running
+/// mean of the updates since the change — the field from before the change is gone from the first still
+/// update on (an intensity change alone scales the field exactly).
 pub fn blend_weight(first_update: bool, age: u32, settings: &RadianceHintsVolume) -> f32 {
-    let converge = convergence_updates(settings.temporal_blend);
     if first_update {
         1.0
-    } else if age < converge || settings.refinement_updates == 0 {
+    } else if age == 0 || settings.refinement_updates == 0 {
         settings.temporal_blend
     } else {
-        // The exponential blend has converged (the field before the change weighs under 1 %): from here,
-        // a running mean of it and the updates that follow.
-        (1.0 / ((age - converge) as f32 + 2.0)).min(settings.temporal_blend.max(0.5))
+        1.0 / age as f32
     }
 }
 
@@ -539,7 +536,7 @@ pub(crate) fn prepare_rh_volumes(
         let same_volume = gpu.built_from.as_ref().is_some_and(|b| b.settings == key.settings && b.transform == key.transform);
         gpu.motion_update = changed && same_volume && !gpu.first_update && s.extra_bounces > 0;
         if changed {
-            gpu.updates_left = convergence_updates(s.temporal_blend) + s.refinement_updates;
+            gpu.updates_left = convergence_updates(s.temporal_blend).max(s.refinement_updates + 1);
             gpu.age = 0;
             gpu.built_from = Some(key);
         }
@@ -711,13 +708,9 @@ mod tests {
         let s = RadianceHintsVolume::MEDIUM;
         assert_eq!(blend_weight(true, 5, &s), 1.0);
         assert_eq!(blend_weight(false, 0, &s), s.temporal_blend);
-        // The exponential blend until the old field is gone, then a running mean: weights 1/2, 1/3, 1/4…
-        let c = convergence_updates(s.temporal_blend);
-        for k in 0..c {
-            assert_eq!(blend_weight(false, k, &s), s.temporal_blend);
-        }
-        for k in 0..10u32 {
-            assert!((blend_weight(false, c + k, &s) - 1.0 / (k as f32 + 2.0)).abs() < 1e-6);
+        // A running mean of the still updates after a change: weights 1, 1/2, 1/3…
+        for k in 1..10u32 {
+            assert!((blend_weight(false, k, &s) - 1.0 / k as f32).abs() < 1e-6);
         }
         let no_refinement = RadianceHintsVolume { refinement_updates: 0, ..s };
         assert_eq!(blend_weight(false, 7, &no_refinement), s.temporal_blend);

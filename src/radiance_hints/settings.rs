@@ -86,10 +86,9 @@ pub struct RadianceHintsVolume {
     ///
     /// Default 0.5 (the paper's). Valid range 0.05–1. Free.
     pub temporal_blend: f32,
-    /// Once lights, geometry and settings are still and the temporal blend has settled (the field from
-    /// before the change weighs under 1 %), the volume keeps updating this many more times and averages
-    /// the updates (weights 1/2, 1/3, …): each update draws fresh RSM samples and jitter, so the average
-    /// converges to the noise-free field. Then it stops until something changes.
+    /// Once lights, geometry and settings are still, the volume keeps updating this many more times and
+    /// averages the updates since the change (weights 1, 1/2, 1/3, …): each update draws fresh RSM samples
+    /// and jitter, so the average converges to the noise-free field. Then it stops until something changes.
     ///
     /// Default 16. Valid range 0–256; 0 updates only until the temporal blend has settled (the paper's
     /// behaviour). Cost: that many more updates after every change; none while still.

@@ -762,7 +762,8 @@ mod incremental_tests {
     use super::*;
     use crate::scene::SceneSnapshot;
 
-    fn app() -> App {
+    /// An app with the snapshot plugin and the assets it reads, no renderer.
+    pub(super) fn app() -> App {
         let mut app = App::new();
         app.add_plugins((MinimalPlugins, AssetPlugin::default(), TransformPlugin, SceneSnapshotPlugin))
             .init_asset::<Mesh>()
@@ -901,13 +902,7 @@ mod skinning_tests {
 
     #[test]
     fn a_skinned_mesh_enters_the_snapshot_in_its_current_pose() {
-        let mut app = App::new();
-        app.add_plugins((MinimalPlugins, AssetPlugin::default(), TransformPlugin, SceneSnapshotPlugin))
-            .init_asset::<Mesh>()
-            .init_asset::<StandardMaterial>()
-            .init_asset::<Image>()
-            .init_asset::<SkinnedMeshInverseBindposes>()
-            .init_resource::<SceneSnapshot>();
+        let mut app = super::incremental_tests::app();
         let world = app.world_mut();
         let mesh = world.resource_mut::<Assets<Mesh>>().add(strip());
         // Joint 1 sits at y = 2 in the bind pose.

@@ -84,3 +84,18 @@ pub fn check(test: &str, condition: bool, actual: &HdrImage, reference: Option<&
         panic!("{message}\n(images saved in {})", dir.display());
     }
 }
+
+/// The path tracer's direct light of `scene` the way Bevy shades it (Burley lobe, one ray through each
+/// pixel centre: noise-free), for comparing with Bevy's own direct light.
+pub fn traced_direct(scene: bevy_diffuse_gi::scenes::StandardScene) -> HdrImage {
+    let report = render(&HeadlessOptions {
+        scene,
+        method: bevy_diffuse_gi::headless::HeadlessMethod::Reference,
+        spp: 1,
+        max_bounces: Some(1),
+        burley_direct: true,
+        pixel_centers: true,
+        ..Default::default()
+    });
+    report.extra_images.into_iter().find(|(n, _)| *n == "direct").map(|(_, i)| i).expect("direct image")
+}
