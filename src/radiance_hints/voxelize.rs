@@ -295,7 +295,7 @@ fn hint_valid(snapshot: &SceneSnapshot, world_from_local: Mat4, res: UVec3, c: U
         for &d in directions {
             if let Some(hit) = snapshot.intersect(p, d, 0.0, f32::INFINITY) {
                 hits += 1;
-                if snapshot.attributes(hit.triangle).geometric_normal.dot(d) > 0.0 {
+                if snapshot.geometric_normal(hit.triangle).dot(d) > 0.0 {
                     back += 1;
                 }
             }

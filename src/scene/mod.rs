@@ -501,16 +501,23 @@ impl SnapshotInstance {
     /// the order of [`SceneHit::barycentrics`].
     pub fn attributes(&self, i: usize) -> TriangleAttributes {
         let a = &self.geometry.attributes[i];
-        let n = |v: Vec3| (self.normal_matrix * v).try_normalize().unwrap_or(v);
-        let [p0, p1, p2] = self.triangle(i);
+        let (geometric_normal, normals) = self.world_normals(i);
         TriangleAttributes {
             material: self.material,
-            geometric_normal: n(a.geometric_normal),
-            normals: a.normals.map(n),
+            geometric_normal,
+            normals,
             uvs: a.uvs,
             uvs_1: a.uvs_1,
-            area: 0.5 * (p1 - p0).cross(p2 - p0).length(),
+            area: triangle_area(&self.triangle(i)),
         }
+    }
+
+    /// World-space unit geometric and vertex normals of local triangle `i` (what a hit needs, without the
+    /// vertices and area of [`SnapshotInstance::attributes`]).
+    pub fn world_normals(&self, i: usize) -> (Vec3, [Vec3; 3]) {
+        let a = &self.geometry.attributes[i];
+        let n = |v: Vec3| (self.normal_matrix * v).try_normalize().unwrap_or(v);
+        (n(a.geometric_normal), a.normals.map(n))
     }
 
     fn local_ray(&self, ray: &Ray) -> Ray {
@@ -518,6 +525,12 @@ impl SnapshotInstance {
         let direction = self.local_from_world_bvh.transform_vector3a(ray.direction) + Vec3A::ZERO;
         Ray::new(origin, direction, ray.tmin, ray.tmax)
     }
+}
+
+/// Area of a triangle, m².
+#[inline]
+pub fn triangle_area([a, b, c]: &[Vec3; 3]) -> f32 {
+    0.5 * (*b - *a).cross(*c - *a).length()
 }
 
 /// What the last [`SceneSnapshot::commit`] changed, for consumers that update incrementally.
@@ -830,6 +843,12 @@ impl SceneSnapshot {
         instance.attributes(local)
     }
 
+    /// World-space unit geometric normal of global triangle `i`.
+    pub fn geometric_normal(&self, i: u32) -> Vec3 {
+        let (instance, local) = self.locate(i);
+        instance.world_normals(local).0
+    }
+
     /// Every triangle's global index, world vertices and material, instance by instance.
     pub fn triangles(&self) -> impl Iterator<Item = (u32, [Vec3; 3])> + '_ {
         self.instances.iter().flat_map(|inst| {
@@ -974,17 +993,15 @@ impl SceneSnapshot {
     /// and the material.
     pub fn surface(&self, origin: Vec3, direction: Vec3, hit: &SceneHit) -> SurfacePoint<'_> {
         let (instance, local) = self.locate(hit.triangle);
-        let attributes = instance.attributes(local);
-        let material = &self.materials[attributes.material as usize];
+        let (geometric_normal, normals) = instance.world_normals(local);
+        let material = &self.materials[instance.material as usize];
         let (u, v) = (hit.barycentrics.x, hit.barycentrics.y);
         let w = 1.0 - u - v;
-        let normal = (attributes.normals[0] * w + attributes.normals[1] * u + attributes.normals[2] * v)
-            .try_normalize()
-            .unwrap_or(attributes.geometric_normal);
+        let normal = (normals[0] * w + normals[1] * u + normals[2] * v).try_normalize().unwrap_or(geometric_normal);
         SurfacePoint {
             position: origin + direction * hit.t,
             normal,
-            geometric_normal: attributes.geometric_normal,
+            geometric_normal,
             diffuse: material.diffuse_at(&self.textures, &instance.geometry.attributes[local], u, v),
             material,
         }

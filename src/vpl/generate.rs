@@ -13,7 +13,7 @@ use bevy::math::{Vec2, Vec3};
 use crate::sampling::{SobolStream, cosine_hemisphere, orthonormal_basis};
 #[cfg(test)]
 use crate::ssbc::bounding_radius;
-use crate::scene::{SceneSnapshot, SnapshotLight, range_falloff};
+use crate::scene::{SceneSnapshot, SnapshotLight, range_falloff, triangle_area};
 
 /// One virtual point light: a diffuse emitter at a surface point.
 ///
@@ -405,8 +405,8 @@ pub fn ism_samples(snapshot: &SceneSnapshot, count: u32, seed: u32) -> Vec<IsmSa
     }
     let mut cdf = Vec::with_capacity(n);
     let mut total = 0.0f64;
-    for (_, [a, b, c]) in snapshot.triangles() {
-        total += (0.5 * (b - a).cross(c - a).length()).max(0.0) as f64;
+    for (_, t) in snapshot.triangles() {
+        total += triangle_area(&t).max(0.0) as f64;
         cdf.push(total);
     }
     if total <= 0.0 {
@@ -440,7 +440,7 @@ pub fn automatic_bound(vpl_count: usize, surface_area: f32) -> f32 {
 
 /// Total surface area of the snapshot, m².
 pub fn surface_area(snapshot: &SceneSnapshot) -> f32 {
-    snapshot.triangles().map(|(_, [a, b, c])| (0.5 * (b - a).cross(c - a).length()).max(0.0)).sum()
+    snapshot.triangles().map(|(_, t)| triangle_area(&t).max(0.0)).sum()
 }
 
 #[cfg(test)]
