@@ -16,7 +16,10 @@
 //!   survival probability `min(max(throughput), 0.95)`.
 //! * **Path classes**: a path's contribution is binned by the number `k` of surface vertices that
 //!   *reflect* light on it: `k = 0` is emission seen directly, `k = 1` is direct light, `k ≥ 2` is indirect
-//!   light with `k − 1` diffuse bounces before the last one towards the eye. `max_bounces = N` keeps
+//!   light with `k − 1` diffuse bounces before the last one towards the eye. Emission reflected once
+//!   (`k = 1` through an emissive surface) is binned with the *indirect* light: Bevy's direct pass
+//!   renders only the analytic lights, so the light an emissive panel casts on a wall is light a GI
+//!   method must add, and the direct image stays what Bevy renders. `max_bounces = N` keeps
 //!   indirect paths with `k − 1 ≤ N` (the per-bounce ground truth of `shared/METRICS.md`).
 //! * **Outputs**: full (`k ≥ 0`), direct-only (`k = 1`) and indirect-only (`k ≥ 2`) images, all multiplied
 //!   by the camera's exposure, plus per-pixel geometry coverage in alpha.
@@ -374,7 +377,9 @@ fn trace_path_from(
         // Emission at this vertex has been reflected by the `depth − 1` vertices before it.
         let emission = surface.material.emission(exposure);
         if emission != Vec3::ZERO && depth - 1 <= max_reflecting {
-            sum.add(depth - 1, throughput * emission);
+            // Emission reflected once is not Bevy's direct light (see the module docs): indirect bin.
+            let bin = if depth == 2 { 2 } else { depth - 1 };
+            sum.add(bin, throughput * emission);
         }
 
         let p = surface.position + ng * epsilon;
