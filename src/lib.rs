@@ -29,6 +29,7 @@
 
 pub mod camera;
 pub mod composite;
+pub mod emitters;
 pub mod hdr_image;
 pub mod headless;
 pub mod light;
@@ -55,7 +56,7 @@ pub mod prelude {
     pub use crate::{DiffuseGiPlugin, MainThreadCost};
     pub use crate::camera::{DiffuseGi, GiDebugView, GiMethod, GiOutput};
     pub use crate::light::GiLight;
-    pub use crate::radiance_hints::{DepthOcclusion, RadianceHintsVolume};
+    pub use crate::radiance_hints::{DepthOcclusion, RadianceHintsCascade, RadianceHintsVolume};
     pub use crate::sh::ShOrder;
     pub use crate::vpl::VplSettings;
     #[cfg(feature = "egui")]
@@ -90,6 +91,7 @@ impl Plugin for DiffuseGiPlugin {
         app.register_type::<light::GiLight>().add_plugins((
             scene::SceneSnapshotPlugin,
             rsm::RsmPlugin,
+            emitters::EmittersPlugin,
             composite::CompositePlugin,
             radiance_hints::RadianceHintsPlugin,
             vpl::VplPlugin,

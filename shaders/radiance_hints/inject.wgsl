@@ -15,6 +15,10 @@
 // The hint also records the minimum and maximum distance to the RSM samples (normalised by r_max) for the
 // confidence (Eq. 9) and visibility (Eq. 11) of the paper's secondary bounces.
 //
+// Emissive surfaces (src/emitters.rs) are injected the same way: an emitter sample of flux Φ_k sends
+// Φ_k |n_k·ω_k| / (π d²) (M/N) to the receiver, M the emitter samples and N those drawn; they take
+// `emitter_fraction` of the N_s samples (their power against the GI lights').
+//
 // VOXEL_VISIBILITY: the paper leaves the first bounce unoccluded (§7), so light reaches hints through
 // walls. Each sample's segment y_k → x_k is walked through the volume's voxelised scene and dropped when it
 // crosses a surface before reaching x_k. Hints inside solid geometry (validity 0) are skipped.
@@ -30,7 +34,7 @@
 #import bevy_render::view::View
 #endif
 
-#import bevy_diffuse_gi::rsm_types::{GiLight, LIGHT_KIND_DIRECTIONAL}
+#import bevy_diffuse_gi::rsm_types::{GiLight, Emitter, LIGHT_KIND_DIRECTIONAL}
 
 @group(0) @binding(0) var<uniform> volume: RhVolume;
 @group(0) @binding(1) var<storage, read_write> out_delta: array<f32>;
@@ -43,6 +47,7 @@
 @group(1) @binding(1) var rsm_normal: texture_2d_array<f32>;
 @group(1) @binding(2) var rsm_flux: texture_2d_array<f32>;
 @group(1) @binding(3) var<storage, read> lights: array<GiLight>;
+@group(1) @binding(4) var<storage, read> emitters: array<Emitter>;
 
 #ifdef DEPTH_OCCLUSION
 @group(3) @binding(0) var<uniform> view: View;
@@ -81,6 +86,36 @@ fn disk(u: vec2<f32>) -> vec2<f32> {
     return r * vec2(cos(phi), sin(phi));
 }
 
+// A receiving point jittered inside the hint's cell (§4), or none (w = 0) when it lies across a wall
+// from the hint's centre: the hint stands for the free part of its cell, so such receivers are left out
+// of the average.
+fn receiver(cell: vec3<f32>, rng: ptr<function, u32>) -> vec4<f32> {
+    let res = volume.resolution.xyz;
+    let jitter = (rand3(rng) - 0.5) * volume.jitter;
+    let y_local = cell_center_local(cell + jitter, res);
+#ifdef VOXEL_VISIBILITY
+    if any(jitter != vec3(0.0)) && first_hit(local_to_occupancy(volume, cell_center_local(cell, res)),
+            local_to_occupancy(volume, y_local), volume.occupancy_resolution.xyz, 0.0) >= 0.0 {
+        return vec4(0.0);
+    }
+#endif
+    return vec4(local_to_world(volume, y_local), 1.0);
+}
+
+// Whether the path from receiver y to the surface point x (normal n, facing y) is free. The test starts
+// from x lifted off its surface along n: a path skimming the surface it leaves must not count its own
+// voxels as occluders (that falsely removes grazing light and leaves only steep directions, whose SH
+// ringing darkens surfaces facing the other way).
+fn path_free(y: vec3<f32>, x: vec3<f32>, n: vec3<f32>, lift: f32) -> bool {
+#ifdef VOXEL_VISIBILITY
+    let a = local_to_occupancy(volume, world_to_local(volume, y));
+    let b = local_to_occupancy(volume, world_to_local(volume, x + n * lift));
+    return first_hit(a, b, volume.occupancy_resolution.xyz, 0.5) < 0.0;
+#else
+    return true;
+#endif
+}
+
 @compute @workgroup_size(#{WORKGROUP_SIZE})
 fn inject(@builtin(global_invocation_id) gid: vec3<u32>) {
     let index = gid.x;
@@ -97,7 +132,6 @@ fn inject(@builtin(global_invocation_id) gid: vec3<u32>) {
     var d_max = 0.0;
     var valid = 0.0;
     let inside_solid = hint_albedo[index].a < 0.5;
-    let occupancy_res = volume.occupancy_resolution.xyz;
     // How far an RSM sample is lifted off its surface before its path is tested: 1.5 occupancy voxels.
     let lift = 1.5 * max(volume.cell.x, max(volume.cell.y, volume.cell.z)) / f32(volume.occupancy_resolution.x / volume.resolution.x);
     for (var l = 0u; l < select(volume.light_count, 0u, inside_solid); l++) {
@@ -105,7 +139,8 @@ fn inject(@builtin(global_invocation_id) gid: vec3<u32>) {
         if light.sample_fraction <= 0.0 {
             continue;
         }
-        let samples = u32(max(round(f32(volume.rsm_samples) * light.sample_fraction), 1.0));
+        let share = light.sample_fraction * (1.0 - volume.emitter_fraction);
+        let samples = u32(max(round(f32(volume.rsm_samples) * share), 1.0));
         let res_l = f32(light.resolution);
         // c_RSM: directional lights may sample a disk around the hint's projection (§4).
         let use_disk = light.kind == LIGHT_KIND_DIRECTIONAL && volume.coverage < 0.75;
@@ -123,17 +158,11 @@ fn inject(@builtin(global_invocation_id) gid: vec3<u32>) {
         var light_sh: Sh;
         var receivers = 0.0;
         for (var s = 0u; s < samples; s++) {
-            let jitter = (rand3(&rng) - 0.5) * volume.jitter;
-            let y_local = cell_center_local(cell + jitter, res);
-            let y = local_to_world(volume, y_local);
-#ifdef VOXEL_VISIBILITY
-            // A receiver across a wall from the hint's centre (or inside the wall) belongs to another room:
-            // the hint stands for the free part of its cell, so such receivers are left out of the average.
-            if any(jitter != vec3(0.0)) && first_hit(local_to_occupancy(volume, cell_center_local(cell, res)),
-                    local_to_occupancy(volume, y_local), occupancy_res, 0.0) >= 0.0 {
+            let receiving = receiver(cell, &rng);
+            if receiving.w == 0.0 {
                 continue;
             }
-#endif
+            let y = receiving.xyz;
             receivers += 1.0;
             var uv: vec2<f32>;
             var face = 0u;
@@ -161,16 +190,9 @@ fn inject(@builtin(global_invocation_id) gid: vec3<u32>) {
             if cos_x <= 0.0 {
                 continue;
             }
-#ifdef VOXEL_VISIBILITY
-            // Test from the sample lifted off its surface along its normal: a path skimming the surface it
-            // leaves must not count its own voxels as occluders (that falsely removes grazing light and
-            // leaves only steep directions, whose SH ringing darkens surfaces facing the other way).
-            let a = local_to_occupancy(volume, world_to_local(volume, y));
-            let b = local_to_occupancy(volume, world_to_local(volume, p.xyz + n * lift));
-            if first_hit(a, b, occupancy_res, 0.5) >= 0.0 {
+            if !path_free(y, p.xyz, n, lift) {
                 continue;
             }
-#endif
             let flux = textureLoad(rsm_flux, texel, layer, 0).rgb * light.flux_scale;
             var contribution = flux * (weight * cos_x / (PI * max(d2, 1e-4)));
 #ifdef DEPTH_OCCLUSION
@@ -183,6 +205,46 @@ fn inject(@builtin(global_invocation_id) gid: vec3<u32>) {
             for (var i = 0u; i < SH_COEFS; i++) {
                 sh.c[i] += light_sh.c[i] * scale;
             }
+        }
+    }
+
+    // The emissive surfaces, sampled like one more light.
+    let emitter_samples = select(0u, u32(max(round(f32(volume.rsm_samples) * volume.emitter_fraction), 1.0)),
+        volume.emitter_count > 0u && !inside_solid);
+    var emitter_sh: Sh;
+    var emitter_receivers = 0.0;
+    for (var s = 0u; s < emitter_samples; s++) {
+        let receiving = receiver(cell, &rng);
+        if receiving.w == 0.0 {
+            continue;
+        }
+        let y = receiving.xyz;
+        emitter_receivers += 1.0;
+        let e = emitters[min(u32(rand(&rng) * f32(volume.emitter_count)), volume.emitter_count - 1u)];
+        let to_x = e.position.xyz - y;
+        let d2 = dot(to_x, to_x);
+        let d = sqrt(d2);
+        d_min = min(d_min, d);
+        d_max = max(d_max, d);
+        valid += 1.0;
+        let w = to_x / max(d, 1e-6);
+        // Two-sided: the face that looks at the receiver emits.
+        let facing = dot(e.normal.xyz, -w);
+        let n = e.normal.xyz * sign(facing);
+        if abs(facing) <= 0.0 || !path_free(y, e.position.xyz, n, lift) {
+            continue;
+        }
+        let weight = f32(volume.emitter_count) / f32(emitter_samples);
+        var contribution = e.flux.rgb * (weight * abs(facing) / (PI * max(d2, 1e-4)));
+#ifdef DEPTH_OCCLUSION
+        contribution *= depth_attenuation(e.position.xyz, y);
+#endif
+        sh_add(&emitter_sh, w, contribution);
+    }
+    if emitter_receivers > 0.0 {
+        let scale = f32(emitter_samples) / emitter_receivers;
+        for (var i = 0u; i < SH_COEFS; i++) {
+            sh.c[i] += emitter_sh.c[i] * scale;
         }
     }
 

@@ -41,6 +41,13 @@ struct RhVolume {
     workgroups: u32,
     // Index of the bounce being computed (1 = first extra bounce).
     bounce: u32,
+    // Point samples of the emissive surfaces (src/emitters.rs), and their share of the N_s samples per
+    // hint (by power, against the GI lights'); 0 without emitters.
+    emitter_count: u32,
+    emitter_fraction: f32,
+    // Cells over which a volume nested inside a coarser one fades in from its faces; 0 for volumes that
+    // are not nested (they fade out over half a cell outside their box instead).
+    blend_band: f32,
     // xyz: voxels of the occupancy grid per axis; w: 1 when lookups and injection test visibility through
     // it (`voxel_visibility`).
     occupancy_resolution: vec4<u32>,

@@ -38,3 +38,14 @@ struct GiLight {
     // LIGHT_KIND_*
     kind: u32,
 }
+
+// One point sample of the scene's emissive surfaces (`GpuEmitter` in src/emitters.rs): it sends
+// flux · |n·ω| / (π d²) towards a receiver, like an RSM texel. Emission leaves both faces.
+struct Emitter {
+    // xyz: world position
+    position: vec4<f32>,
+    // xyz: unit normal of the emitting triangle
+    normal: vec4<f32>,
+    // rgb: flux in lumens carried by this sample
+    flux: vec4<f32>,
+}

@@ -75,6 +75,7 @@ pub(crate) fn validate_settings(
 fn field_value(v: &RadianceHintsVolume, field: &str) -> String {
     match field {
         "resolution" => format!("{}", v.resolution),
+        "sizing" => format!("{:?}", v.sizing),
         "rsm_samples" => v.rsm_samples.to_string(),
         "rsm_coverage" => v.rsm_coverage.to_string(),
         "jitter" => v.jitter.to_string(),
@@ -117,9 +118,15 @@ pub(crate) fn volume_matrix(transform: &GlobalTransform) -> Mat4 {
     if m.is_finite() && m.determinant().abs() > 1e-12 { m } else { Mat4::IDENTITY }
 }
 
-/// Inserts the scene snapshot (the RSMs rasterise it) as soon as a GI light exists.
-pub(crate) fn ensure_snapshot(mut commands: Commands, snapshot: Option<Res<SceneSnapshot>>, lights: Query<(), With<GiLight>>) {
-    if snapshot.is_none() && !lights.is_empty() {
+/// Inserts the scene snapshot (the RSMs rasterise it, the volumes are voxelised from it, and the emissive
+/// surfaces are sampled from it) as soon as a GI light or a volume exists.
+pub(crate) fn ensure_snapshot(
+    mut commands: Commands,
+    snapshot: Option<Res<SceneSnapshot>>,
+    lights: Query<(), With<GiLight>>,
+    volumes: Query<(), With<RadianceHintsVolume>>,
+) {
+    if snapshot.is_none() && !(lights.is_empty() && volumes.is_empty()) {
         commands.init_resource::<SceneSnapshot>();
     }
 }
@@ -137,8 +144,8 @@ pub(crate) fn update_geometry_voxels(
     };
     let mut worked = false;
     for (entity, volume, transform, voxels) in &volumes {
-        let (settings, _) = volume.sanitized();
         let matrix = volume_matrix(transform);
+        let settings = volume.effective(matrix);
         let key = (
             snapshot.geometry_generation,
             matrix.to_cols_array().map(f32::to_bits),
@@ -169,7 +176,7 @@ pub(crate) fn update_geometry_voxels(
 pub(crate) fn manage_irradiance_exports(
     mut commands: Commands,
     cameras: Query<(&Camera, &DiffuseGi)>,
-    volumes: Query<(Entity, &RadianceHintsVolume, Option<&RhIrradianceExport>)>,
+    volumes: Query<(Entity, &RadianceHintsVolume, &GlobalTransform, Option<&RhIrradianceExport>)>,
     images: Option<ResMut<Assets<Image>>>,
 ) {
     let Some(mut images) = images else {
@@ -178,8 +185,8 @@ pub(crate) fn manage_irradiance_exports(
     let wanted = cameras.iter().any(|(camera, gi)| {
         camera.is_active && gi.enabled && gi.method == GiMethod::RadianceHints && gi.output == GiOutput::IrradianceVolume
     });
-    for (entity, volume, export) in &volumes {
-        let resolution = volume.sanitized().0.resolution;
+    for (entity, volume, transform, export) in &volumes {
+        let resolution = volume.effective(volume_matrix(transform)).resolution;
         match (wanted, export) {
             (true, Some(e)) if e.resolution == resolution => {}
             (true, existing) => {
@@ -273,8 +280,8 @@ pub(crate) fn extract_volumes(
         if visibility.is_some_and(|v| !v.get()) {
             continue;
         }
-        let (settings, _) = volume.sanitized();
         let world_from_local = volume_matrix(transform);
+        let settings = volume.effective(world_from_local);
         for i in 0..8 {
             let corner = Vec3::new(
                 if i & 1 == 0 { -0.5 } else { 0.5 },

@@ -100,6 +100,7 @@
 //! * lavapipe's timestamps of compute passes do not bracket their work: `rh_inject` and `rh_bounce` GPU
 //!   times are meaningless there (render passes are fine).
 
+pub mod cascade;
 pub mod dump;
 pub mod extract;
 pub mod prepare;
@@ -117,7 +118,8 @@ use bevy::render::render_resource::{SpecializedComputePipelines, SpecializedRend
 use bevy::render::{ExtractSchedule, Render, RenderApp, RenderStartup, RenderSystems};
 use bevy::shader::Shader;
 
-pub use settings::{DepthOcclusion, RadianceHintsVolume, SecondaryTransport};
+pub use cascade::{CascadeLevel, RadianceHintsCascade};
+pub use settings::{DepthOcclusion, GridSizing, RadianceHintsVolume, SecondaryTransport};
 
 use crate::sh::ShOrder;
 
@@ -154,7 +156,7 @@ pub fn missing_capabilities(limits: &bevy::render::settings::WgpuLimits, compute
     };
     need("compute shaders (DownlevelFlags::COMPUTE_SHADERS)", 1, compute as u64);
     need("indirect dispatch (DownlevelFlags::INDIRECT_EXECUTION)", 1, indirect as u64);
-    need("max_storage_buffers_per_shader_stage", 6, limits.max_storage_buffers_per_shader_stage as u64);
+    need("max_storage_buffers_per_shader_stage", 7, limits.max_storage_buffers_per_shader_stage as u64);
     need("max_storage_textures_per_shader_stage", 1, limits.max_storage_textures_per_shader_stage as u64);
     let threads = crate::WORKGROUP_SIZE as u64;
     need("max_compute_workgroup_size_x", threads, limits.max_compute_workgroup_size_x as u64);
@@ -200,7 +202,9 @@ impl Plugin for RadianceHintsPlugin {
         shaders.libraries.push(occupancy);
         app.add_plugins(bevy::render::extract_resource::ExtractResourcePlugin::<dump::RhVolumeDump>::default());
         app.register_type::<RadianceHintsVolume>()
+            .register_type::<RadianceHintsCascade>()
             .register_type::<crate::camera::DiffuseGi>()
+            .add_systems(PostUpdate, cascade::update_cascades.before(bevy::transform::TransformSystems::Propagate))
             .add_systems(
                 PostUpdate,
                 (

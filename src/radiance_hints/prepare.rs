@@ -19,6 +19,7 @@ use crate::camera::GiMethod;
 use crate::composite::{ExtractedDiffuseGi, GI_TARGET_FORMAT};
 use super::settings::RadianceHintsVolume;
 use super::{RhShaders, sh_floats};
+use crate::emitters::{EmitterSamples, GpuEmitter};
 use crate::rsm::RsmAtlas;
 use crate::sh::ShOrder;
 
@@ -49,6 +50,9 @@ pub struct RhVolumeUniform {
     pub reconstruction_samples: u32,
     pub workgroups: u32,
     pub bounce: u32,
+    pub emitter_count: u32,
+    pub emitter_fraction: f32,
+    pub blend_band: f32,
     pub occupancy_resolution: UVec4,
 }
 
@@ -77,14 +81,20 @@ pub struct RhReconstructKey {
     /// The [`GiDebugView::HintGrid`](crate::camera::GiDebugView::HintGrid) view: the nearest hint's
     /// irradiance with cell borders instead of the reconstruction.
     pub hint_grid: bool,
+    /// The volume lies inside a coarser one: it is drawn after it and over it, fading in over
+    /// [`NESTED_BLEND_CELLS`] inside its box, instead of being averaged with it.
+    pub nested: bool,
 }
+
+/// Cells over which a volume nested inside a coarser one fades in from its box's faces.
+pub const NESTED_BLEND_CELLS: f32 = 2.0;
 
 /// Layouts and shaders of every Radiance Hints pass.
 #[derive(Resource)]
 pub struct RhPipelines {
     /// Group 0 of the injection: uniform, delta, sum, distances.
     pub inject_output_layout: BindGroupLayoutDescriptor,
-    /// Group 1 of the injection: the RSM atlas and the GI lights.
+    /// Group 1 of the injection: the RSM atlas, the GI lights and the emitter samples.
     pub rsm_layout: BindGroupLayoutDescriptor,
     /// Group 3 of the injection with §8 occlusion: the camera's view and depth.
     pub depth_layout: BindGroupLayoutDescriptor,
@@ -125,7 +135,13 @@ impl FromWorld for RhPipelines {
                 "diffuse_gi_rh_rsm_layout",
                 &BindGroupLayoutEntries::sequential(
                     compute,
-                    (texture_2d_array(unfilterable), texture_2d_array(unfilterable), texture_2d_array(unfilterable), ro()),
+                    (
+                        texture_2d_array(unfilterable),
+                        texture_2d_array(unfilterable),
+                        texture_2d_array(unfilterable),
+                        ro(),
+                        ro(),
+                    ),
                 ),
             ),
             depth_layout: BindGroupLayoutDescriptor::new(
@@ -262,10 +278,15 @@ impl SpecializedRenderPipeline for RhPipelines {
                 entry_point: Some("reconstruct".into()),
                 targets: vec![Some(ColorTargetState {
                     format: GI_TARGET_FORMAT,
-                    // Volumes add up; the composite divides by the summed weight in alpha.
-                    blend: Some(BlendState {
-                        color: BlendComponent { src_factor: BlendFactor::One, dst_factor: BlendFactor::One, operation: BlendOperation::Add },
-                        alpha: BlendComponent { src_factor: BlendFactor::One, dst_factor: BlendFactor::One, operation: BlendOperation::Add },
+                    // Volumes side by side add up; the composite divides by the summed weight in alpha. A
+                    // nested volume is drawn over the coarser ones (premultiplied by its weight).
+                    blend: Some(if key.nested {
+                        BlendState::PREMULTIPLIED_ALPHA_BLENDING
+                    } else {
+                        BlendState {
+                            color: BlendComponent { src_factor: BlendFactor::One, dst_factor: BlendFactor::One, operation: BlendOperation::Add },
+                            alpha: BlendComponent { src_factor: BlendFactor::One, dst_factor: BlendFactor::One, operation: BlendOperation::Add },
+                        }
                     }),
                     write_mask: ColorWrites::ALL,
                 })],
@@ -279,6 +300,7 @@ impl SpecializedRenderPipeline for RhPipelines {
 #[derive(Clone, Debug, PartialEq)]
 struct BuildKey {
     rsm_version: u64,
+    emitter_generation: u64,
     settings: RadianceHintsVolume,
     transform: [u32; 16],
     voxel_generation: u64,
@@ -316,6 +338,10 @@ pub struct RhVolumeGpu {
     pub age: u32,
     /// Whether the volume runs inject/bounce/blend this frame.
     pub update_this_frame: bool,
+    /// The volume lies inside a coarser one (see [`RhReconstructKey::nested`]).
+    pub nested: bool,
+    /// Edge of a cell's diagonal, metres (coarser volumes are drawn first).
+    pub cell_diagonal: f32,
     /// This frame's update is an amortised one (the inputs changed this frame, as they do every frame
     /// while a light or mesh moves): injection plus a single bounce gathered from the displayed field,
     /// so bounces accumulate over frames instead of all running every frame.
@@ -362,6 +388,40 @@ pub struct RhVolumesGpu {
     pub depth_updated_frame: Option<u32>,
     /// Reconstruction pipelines per key the cameras use this frame.
     pub reconstruct_pipelines: HashMap<RhReconstructKey, CachedRenderPipelineId>,
+    /// The scene's emitter samples ([`crate::emitters`]), shared by every volume (one unused sample
+    /// when there are none: storage buffers may not be empty), and the generation they were uploaded at.
+    pub emitters: Option<Buffer>,
+    emitters_uploaded: Option<u64>,
+    emitter_count: u32,
+}
+
+/// For each volume, whether its box lies inside the box of another volume with cells at least 10 %
+/// larger: such a volume refines the coarser one where they overlap instead of averaging with it.
+pub fn nested_volumes(volumes: &[super::extract::ExtractedRhVolume]) -> Vec<bool> {
+    let cell = |v: &super::extract::ExtractedRhVolume| {
+        (super::settings::box_size(v.world_from_local) / v.settings.resolution.as_vec3()).length()
+    };
+    let corners = |m: Mat4| {
+        (0..8).map(move |i| {
+            m.transform_point3(Vec3::new(
+                if i & 1 == 0 { -0.5 } else { 0.5 },
+                if i & 2 == 0 { -0.5 } else { 0.5 },
+                if i & 4 == 0 { -0.5 } else { 0.5 },
+            ))
+        })
+    };
+    volumes
+        .iter()
+        .map(|inner| {
+            volumes.iter().any(|outer| {
+                let local_from_world = outer.world_from_local.inverse();
+                outer.entity != inner.entity
+                    && cell(outer) > 1.1 * cell(inner)
+                    && corners(inner.world_from_local)
+                        .all(|p| local_from_world.transform_point3(p).abs().max_element() <= 0.5 + 1e-4)
+            })
+        })
+        .collect()
 }
 
 /// The weight of an update in the displayed field: everything on the very first update; the temporal
@@ -445,6 +505,8 @@ impl RhVolumeGpu {
             first_update: true,
             age: 0,
             update_this_frame: false,
+            nested: false,
+            cell_diagonal: 0.0,
             motion_update: false,
             uniform_offsets: Vec::new(),
             export: None,
@@ -485,8 +547,33 @@ pub(crate) fn prepare_rh_volumes(
     device: Res<RenderDevice>,
     queue: Res<RenderQueue>,
     frame: Res<FrameCount>,
+    emitters: Option<Res<EmitterSamples>>,
 ) {
     let state = &mut *state;
+    // The emitter samples, uploaded when they change.
+    let emitter_generation = emitters.as_ref().map_or(0, |e| e.generation);
+    if state.emitters.is_none() || state.emitters_uploaded != Some(emitter_generation) {
+        let samples: &[GpuEmitter] = emitters.as_ref().map_or(&[], |e| e.samples.as_slice());
+        let data = if samples.is_empty() { vec![GpuEmitter::default()] } else { samples.to_vec() };
+        state.emitters = Some(device.create_buffer_with_data(&BufferInitDescriptor {
+            label: Some("diffuse_gi_rh_emitters"),
+            contents: bytemuck::cast_slice(&data),
+            usage: BufferUsages::STORAGE,
+        }));
+        state.emitters_uploaded = Some(emitter_generation);
+        state.emitter_count = samples.len() as u32;
+    }
+    // Emitters share the samples of each hint with the GI lights by power.
+    let light_power: f32 = atlas.slots.iter().map(|s| s.light_faces.power).sum();
+    let emitter_power = emitters.as_ref().map_or(0.0, |e| e.power);
+    let emitter_fraction = if state.emitter_count == 0 {
+        0.0
+    } else if light_power > 0.0 {
+        (emitter_power / (emitter_power + light_power)).clamp(0.0, 1.0)
+    } else {
+        1.0
+    };
+    let nested = nested_volumes(&extracted.volumes);
     let previous = std::mem::take(&mut state.volumes);
     let mut previous: HashMap<Entity, RhVolumeGpu> = previous.into_iter().map(|v| (v.entity, v)).collect();
     state.uniforms.clear();
@@ -525,6 +612,7 @@ pub(crate) fn prepare_rh_volumes(
 
         let key = BuildKey {
             rsm_version: atlas.version,
+            emitter_generation,
             settings: s.clone(),
             transform: volume.world_from_local.to_cols_array().map(f32::to_bits),
             voxel_generation,
@@ -548,6 +636,8 @@ pub(crate) fn prepare_rh_volumes(
         let size_z = (volume.world_from_local * Vec4::new(0.0, 0.0, 1.0, 0.0)).truncate().length();
         let extent = Vec3::new(size, size_y, size_z);
         let cell = extent / s.resolution.as_vec3();
+        gpu.nested = nested[index];
+        gpu.cell_diagonal = cell.length();
         let base_seed = frame.0.wrapping_mul(0x9E37_79B9) ^ (index as u32).wrapping_mul(0x85EB_CA6B);
         let mut uniform = RhVolumeUniform {
             world_from_local: volume.world_from_local,
@@ -570,6 +660,9 @@ pub(crate) fn prepare_rh_volumes(
             reconstruction_samples: s.reconstruction_samples,
             workgroups: gpu.workgroups,
             bounce: 0,
+            emitter_count: state.emitter_count,
+            emitter_fraction,
+            blend_band: if gpu.nested { NESTED_BLEND_CELLS } else { 0.0 },
             occupancy_resolution: gpu.occupancy_resolution.extend(s.voxel_visibility as u32),
         };
         gpu.uniform_offsets.clear();
@@ -610,11 +703,12 @@ pub(crate) fn prepare_rh_volumes(
 
     state.reconstruct_pipelines.clear();
     for camera in cameras.iter().filter(|c| c.0.method == GiMethod::RadianceHints) {
-        for order in state.volumes.iter().map(|v| v.settings.sh_order).collect::<Vec<_>>() {
+        for (order, nested) in state.volumes.iter().map(|v| (v.settings.sh_order, v.nested)).collect::<Vec<_>>() {
             let key = RhReconstructKey {
                 sh_order: order,
                 half_resolution: camera.0.half_resolution,
                 hint_grid: camera.0.debug_view == crate::camera::GiDebugView::HintGrid,
+                nested,
             };
             let id = specialized_render.specialize(&pipeline_cache, &pipelines, key);
             state.reconstruct_pipelines.insert(key, id);

@@ -82,7 +82,7 @@ fn update_volumes(
     if !state.volumes.iter().any(|v| wants(v) && (v.update_this_frame || v.export.is_some())) {
         return;
     }
-    let Some(lights) = atlas.lights.binding() else {
+    let (Some(lights), Some(emitters)) = (atlas.lights.binding(), state.emitters.as_ref()) else {
         return;
     };
     let device = ctx.render_device().clone();
@@ -91,7 +91,13 @@ fn update_volumes(
     let rsm_bind_group = device.create_bind_group(
         "diffuse_gi_rh_rsm_bind_group",
         &pipeline_cache.get_bind_group_layout(&pipelines.rsm_layout),
-        &BindGroupEntries::sequential((&atlas.position_view, &atlas.normal_view, &atlas.flux_view, lights)),
+        &BindGroupEntries::sequential((
+            &atlas.position_view,
+            &atlas.normal_view,
+            &atlas.flux_view,
+            lights,
+            emitters.as_entire_binding(),
+        )),
     );
 
     for v in &mut state.volumes {
@@ -227,11 +233,15 @@ pub(crate) fn reconstruct_gi(
     let span = diagnostics.time_span(ctx.command_encoder(), "diffuse_gi/rh_reconstruct");
     {
         let mut pass = crate::composite::begin_target_pass(&mut ctx, "diffuse_gi_rh_reconstruct", &target.texture.default_view);
-        for v in &state.volumes {
+        // Volumes side by side first, then nested ones from coarse to fine, each drawn over the last.
+        let mut order: Vec<&super::prepare::RhVolumeGpu> = state.volumes.iter().collect();
+        order.sort_by(|a, b| a.nested.cmp(&b.nested).then(b.cell_diagonal.total_cmp(&a.cell_diagonal)));
+        for v in order {
             let key = RhReconstructKey {
                 sh_order: v.settings.sh_order,
                 half_resolution: gi.0.half_resolution,
                 hint_grid: gi.0.debug_view == GiDebugView::HintGrid,
+                nested: v.nested,
             };
             let (Some(pipeline), Some(groups)) = (
                 state.reconstruct_pipelines.get(&key).and_then(|id| pipeline_cache.get_render_pipeline(*id)),

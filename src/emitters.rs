@@ -1,0 +1,219 @@
+//! Emissive surfaces as light sources: the scene snapshot's emissive triangles, sampled into point emitters
+//! (position, normal, flux) that the GI methods inject like the texels of a reflective shadow map.
+//!
+//! Bevy renders an emissive `StandardMaterial` as a glowing surface but casts no light from it: a room lit
+//! only by a glowing panel (Bevy's own Cornell box asset is lit that way) is black apart from the panel.
+//! Every emitted photon that reaches another surface is therefore light the GI has to add, and the
+//! ground-truth tracer counts it with the indirect light ([`crate::reference`]).
+//!
+//! # Sampling
+//! A Lambertian emitter of radiance `L_e` and area `A` emits the flux `Φ = π L_e A` (the same quantity as
+//! an RSM texel's reflected flux `ρΦ_T`, Eq. 4 of Dachsbacher & Stamminger), so a point sample of flux `Φ_k`
+//! at `x_k` with normal `n_k` sends `Φ_k max(0, n_k·ω) / (π d²)` towards a receiver at distance `d`: the
+//! injection of Radiance Hints (§4, Eq. 3–5 of Papaioannou 2011) applies unchanged. [`MAX_EMITTER_SAMPLES`]
+//! samples are spread over the emissive triangles in proportion to their power (stratified over the
+//! cumulative power, uniform by area inside each triangle); each carries `Φ_total / N` in its brightest
+//! channel and the triangle's colour in the others, which keeps the estimator unbiased for any mix of
+//! colours and sizes. Emitters are two-sided, as the tracer's are.
+//!
+//! # Cost
+//! Regenerated only when the snapshot's geometry or materials change, and then only the instances whose
+//! material emits are visited: O(instances + emissive triangles + samples) on the main thread. Scenes
+//! without emissive materials get an empty set, and the methods skip their emitter pass.
+//!
+//! # Known issues
+//! * Emissive textures are not read (the emitter's colour is `emissive` alone), as in the tracer.
+//! * `emissive.alpha < 1` (exposure-scaled emission) is evaluated at the exposure of the first camera with
+//!   [`DiffuseGi`](crate::camera::DiffuseGi).
+
+use std::sync::Arc;
+
+use bevy::camera::Exposure;
+use bevy::prelude::*;
+use bevy::render::extract_resource::{ExtractResource, ExtractResourcePlugin};
+use bevy::render::render_resource::ShaderType;
+
+use crate::camera::DiffuseGi;
+use crate::scene::{SceneSnapshot, SceneSnapshotSystems, triangle_area};
+
+/// Samples drawn over all emissive surfaces of the scene.
+pub const MAX_EMITTER_SAMPLES: usize = 4096;
+
+/// One point emitter as the passes see it (`Emitter` in `shaders/rsm/rsm_types.wgsl`).
+#[derive(ShaderType, Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
+pub struct GpuEmitter {
+    /// World position (xyz), w unused.
+    pub position: Vec4,
+    /// Unit geometric normal of the emitting triangle (xyz); emission leaves both faces.
+    pub normal: Vec4,
+    /// Flux in lumens per channel (rgb) carried by this sample.
+    pub flux: Vec4,
+}
+
+/// The scene's emitters, sampled from the [`SceneSnapshot`] (see the [module docs](self)).
+#[derive(Resource, Clone, Debug, Default, ExtractResource)]
+pub struct EmitterSamples {
+    /// Bumped whenever the samples change.
+    pub generation: u64,
+    pub samples: Arc<Vec<GpuEmitter>>,
+    /// Total emitted flux in lumens of the brightest channel (the measure the RSM lights use to share
+    /// samples between them).
+    pub power: f32,
+    /// What the samples were drawn from: snapshot geometry generation and exposure.
+    key: (u64, u32),
+}
+
+/// Keeps [`EmitterSamples`] up to date. Added by [`crate::DiffuseGiPlugin`].
+pub struct EmittersPlugin;
+
+impl Plugin for EmittersPlugin {
+    fn build(&self, app: &mut App) {
+        app.init_resource::<EmitterSamples>()
+            .add_plugins(ExtractResourcePlugin::<EmitterSamples>::default())
+            .add_systems(
+                PostUpdate,
+                update_emitters.after(SceneSnapshotSystems::Update).run_if(resource_exists::<SceneSnapshot>),
+            );
+    }
+}
+
+fn update_emitters(
+    snapshot: Res<SceneSnapshot>,
+    cameras: Query<(&Camera, Option<&Exposure>), With<DiffuseGi>>,
+    mut emitters: ResMut<EmitterSamples>,
+) {
+    let exposure = cameras
+        .iter()
+        .find(|(camera, _)| camera.is_active)
+        .map_or(Exposure::default().exposure(), |(_, e)| e.copied().unwrap_or_default().exposure());
+    let key = (snapshot.geometry_generation, exposure.to_bits());
+    if emitters.key == key {
+        return;
+    }
+    let (samples, power) = sample_emitters(&snapshot, exposure, MAX_EMITTER_SAMPLES);
+    // Scenes without emitters keep the same (empty) set: no change to report.
+    if samples.is_empty() && emitters.samples.is_empty() {
+        emitters.key = key;
+        return;
+    }
+    let generation = emitters.generation + 1;
+    *emitters = EmitterSamples {
+        generation,
+        samples: Arc::new(samples),
+        power,
+        key,
+    };
+}
+
+/// Draws `count` point emitters over the emissive triangles of `snapshot` for a camera of `exposure`,
+/// and returns them with the total power (see the [module docs](self)). Empty without emitters.
+pub fn sample_emitters(snapshot: &SceneSnapshot, exposure: f32, count: usize) -> (Vec<GpuEmitter>, f32) {
+    // (triangle vertices, normal, radiance, power) of every emissive triangle.
+    let mut triangles: Vec<([Vec3; 3], Vec3, Vec3, f32)> = Vec::new();
+    for instance in snapshot.instances() {
+        let Some(material) = snapshot.materials.get(instance.material as usize) else {
+            continue;
+        };
+        let radiance = material.emission(exposure);
+        if !(radiance.max_element() > 0.0) || !radiance.is_finite() {
+            continue;
+        }
+        for i in 0..instance.triangle_count() {
+            let v = instance.triangle(i);
+            let area = triangle_area(&v);
+            let normal = (v[1] - v[0]).cross(v[2] - v[0]).normalize_or_zero();
+            if area > 0.0 && normal != Vec3::ZERO {
+                triangles.push((v, normal, radiance, std::f32::consts::PI * radiance.max_element() * area));
+            }
+        }
+    }
+    let total: f64 = triangles.iter().map(|t| t.3 as f64).sum();
+    if triangles.is_empty() || !(total > 0.0) || count == 0 {
+        return (Vec::new(), 0.0);
+    }
+    let per_sample = (total / count as f64) as f32;
+    let mut samples = Vec::with_capacity(count);
+    let mut cumulative = 0.0f64;
+    let mut t = 0;
+    for k in 0..count {
+        // Stratified over the cumulative power: sample k lands in the triangle holding (k + ½)/N of it.
+        let target = (k as f64 + 0.5) / count as f64 * total;
+        while t + 1 < triangles.len() && cumulative + triangles[t].3 as f64 <= target {
+            cumulative += triangles[t].3 as f64;
+            t += 1;
+        }
+        let (v, normal, radiance, _) = triangles[t];
+        // A uniform point in the triangle from the R2 sequence (Roberts 2018).
+        let u = Vec2::new((0.5 + 0.754_877_7 * k as f32).fract(), (0.5 + 0.569_840_3 * k as f32).fract());
+        let (a, b) = if u.x + u.y > 1.0 { (1.0 - u.x, 1.0 - u.y) } else { (u.x, u.y) };
+        let position = v[0] + a * (v[1] - v[0]) + b * (v[2] - v[0]);
+        let colour = radiance / radiance.max_element();
+        samples.push(GpuEmitter {
+            position: position.extend(1.0),
+            normal: normal.extend(0.0),
+            flux: (colour * per_sample).extend(0.0),
+        });
+    }
+    (samples, total as f32)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::{InputTriangle, SnapshotMaterial};
+
+    fn quad(y: f32, size: f32, material: u32) -> [InputTriangle; 2] {
+        let h = size / 2.0;
+        let (a, b, c, d) = (Vec3::new(-h, y, -h), Vec3::new(h, y, -h), Vec3::new(h, y, h), Vec3::new(-h, y, h));
+        [InputTriangle::flat([a, c, b], material), InputTriangle::flat([a, d, c], material)]
+    }
+
+    #[test]
+    fn samples_carry_the_emitted_flux_in_its_colour_and_lie_on_the_emitters() {
+        let glow = SnapshotMaterial {
+            emissive: Vec3::new(100.0, 50.0, 10.0),
+            ..SnapshotMaterial::DEFAULT_GREY
+        };
+        let mut triangles = quad(1.0, 0.5, 1).to_vec();
+        triangles.extend(quad(0.0, 2.0, 0));
+        let snapshot = SceneSnapshot::build(triangles, vec![SnapshotMaterial::DEFAULT_GREY, glow], vec![], vec![]);
+        let (samples, power) = sample_emitters(&snapshot, 1.0, 1000);
+        assert_eq!(samples.len(), 1000);
+        // Φ = π L A in the brightest channel.
+        let expected = std::f32::consts::PI * 100.0 * 0.25;
+        assert!((power - expected).abs() < 1e-3 * expected, "{power} vs {expected}");
+        let flux: Vec3 = samples.iter().map(|s| s.flux.truncate()).sum();
+        let want = std::f32::consts::PI * Vec3::new(100.0, 50.0, 10.0) * 0.25;
+        assert!((flux - want).abs().max_element() < 1e-3 * want.x, "{flux} vs {want}");
+        for s in &samples {
+            assert!((s.position.y - 1.0).abs() < 1e-5 && s.position.x.abs() <= 0.25 + 1e-5 && s.position.z.abs() <= 0.25 + 1e-5);
+            assert!((s.normal.y.abs() - 1.0).abs() < 1e-5);
+        }
+        // Uniform by area: as many samples in each half of the panel, within the stratification.
+        let left = samples.iter().filter(|s| s.position.x < 0.0).count();
+        assert!((left as i32 - 500).abs() < 40, "{left} of 1000 on the left half");
+    }
+
+    #[test]
+    fn a_scene_without_emission_has_no_emitters() {
+        let snapshot = SceneSnapshot::build(quad(0.0, 2.0, 0).to_vec(), vec![SnapshotMaterial::DEFAULT_GREY], vec![], vec![]);
+        let (samples, power) = sample_emitters(&snapshot, 1.0, 64);
+        assert!(samples.is_empty());
+        assert_eq!(power, 0.0);
+    }
+
+    #[test]
+    fn brighter_triangles_get_more_samples() {
+        let dim = SnapshotMaterial { emissive: Vec3::splat(1.0), ..SnapshotMaterial::DEFAULT_GREY };
+        let bright = SnapshotMaterial { emissive: Vec3::splat(3.0), ..SnapshotMaterial::DEFAULT_GREY };
+        let mut triangles = quad(0.0, 1.0, 0).to_vec();
+        triangles.extend(quad(2.0, 1.0, 1));
+        let snapshot = SceneSnapshot::build(triangles, vec![dim, bright], vec![], vec![]);
+        let (samples, _) = sample_emitters(&snapshot, 1.0, 400);
+        let high = samples.iter().filter(|s| s.position.y > 1.0).count();
+        assert_eq!(high, 300);
+        // Every sample carries the same flux in its brightest channel.
+        assert!(samples.iter().all(|s| (s.flux.x - samples[0].flux.x).abs() < 1e-4 * s.flux.x));
+    }
+}
