@@ -2,8 +2,8 @@
 //!
 //! `cargo run --release --example compare -- METHOD.exr GROUND_TRUTH.exr [--diff OUT.png] [--scale S]`
 //!
-//! Prints the block relative RMSE (the headline number), the per-pixel relative RMSE, the energy ratio and,
-//! with the `flip` feature, the mean FLIP error. The difference image maps `|a − r|` divided by the mean of
+//! Prints the block relative RMSE (the headline number), the per-pixel relative RMSE, the energy ratio,
+//! the share of 4×4 blocks more than 50 % off and, with the `flip` feature, the mean FLIP error. The difference image maps `|a − r|` divided by the mean of
 //! the reference to black → blue → green → yellow → red at `S` (default 1.0); it goes beside the first
 //! image as `A.diff.png` unless `--diff` names it.
 
@@ -61,6 +61,7 @@ fn run() -> Result<(), String> {
     println!("block rel. RMSE  {:.4}   ({} blocks of 4x4)", m.block_relative_rmse, m.blocks);
     println!("pixel rel. RMSE  {:.4}   ({} pixels)", m.relative_rmse, m.pixels);
     println!("energy ratio     {:.4}", m.energy_ratio);
+    println!("blocks > 50 % off {:.4}", m.blocks_over_half_off);
     match m.flip {
         Some(flip) => println!("mean FLIP        {flip:.4}"),
         None => println!("mean FLIP        (build with --features flip)"),

@@ -31,8 +31,8 @@ use bevy_diffuse_gi::radiance_hints::{DepthOcclusion, RadianceHintsVolume, Secon
 use bevy_diffuse_gi::scenes::StandardScene;
 use bevy_diffuse_gi::sh::ShOrder;
 
-const SECTIONS: &[&str] = &["presets", "bounces", "ablation", "cellar", "tradeoff", "timing", "images"];
-const USAGE: &str = "usage: rh_report [--section presets|bounces|ablation|cellar|tradeoff|timing|images]... \
+const SECTIONS: &[&str] = &["presets", "scale", "bounces", "ablation", "cellar", "tradeoff", "timing", "images"];
+const USAGE: &str = "usage: rh_report [--section presets|scale|bounces|ablation|cellar|tradeoff|timing|images]... \
                      [--rounds N] [--docs FILE.md]";
 
 /// Static frames rendered before the image is kept: enough for the volume to finish refining, so the last
@@ -66,6 +66,7 @@ fn run() -> Result<(), String> {
         let started = std::time::Instant::now();
         let table = match section.as_str() {
             "presets" => report.presets()?,
+            "scale" => report.scale()?,
             "bounces" => report.bounces()?,
             "ablation" => report.ablation()?,
             "cellar" => report.cellar()?,
@@ -173,7 +174,7 @@ impl Report {
     fn new() -> Result<Self, String> {
         let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("assets/ground_truth");
         let mut truths = BTreeMap::new();
-        for name in ["cornell", "cornell_b1", "cornell_b2", "cellar"] {
+        for name in ["cornell", "cornell_b1", "cornell_b2", "cellar", "sponza_like", "open_field", "emissive_panel", "dynamic"] {
             let path = dir.join(format!("{name}.exr"));
             truths.insert(name, HdrImage::read(&path).map_err(|e| format!("{}: {e}", path.display()))?);
         }
@@ -213,6 +214,63 @@ impl Report {
                 mib(preset.memory_bytes()),
                 metrics_cells(&m)
             );
+        }
+        Ok(out)
+    }
+
+    /// The presets and the old fixed grid on rooms of 2 m to a 60 m field, plus the other light kinds.
+    fn scale(&mut self) -> Result<String, String> {
+        use bevy_diffuse_gi::radiance_hints::GridSizing;
+        let mut out = String::from(
+            "| scene | setting | hints | volume memory | block rel. RMSE | pixel rel. RMSE | energy | blocks > 50 % off | still frame × frame without GI |\n\
+             |---|---|---|---|---|---|---|---|---|\n",
+        );
+        let fixed16 = RadianceHintsVolume { sizing: GridSizing::Fixed, resolution: bevy::math::UVec3::splat(16), extra_bounces: 4, ..RadianceHintsVolume::MEDIUM };
+        let settings = [
+            ("before: 16 along the longest side, 4 bounces", fixed16),
+            ("low", RadianceHintsVolume::LOW),
+            ("**default** (medium)", RadianceHintsVolume::MEDIUM),
+            ("high", RadianceHintsVolume::HIGH),
+        ];
+        let scenes = [
+            (StandardScene::Cornell, "cornell", "cornell (2 m, spot)"),
+            (StandardScene::Cellar, "cellar", "cellar (8 m, two rooms, spot)"),
+            (StandardScene::SponzaLike, "sponza_like", "sponza_like (12 m, sun)"),
+            (StandardScene::OpenField, "open_field", "open_field (60 m, sun)"),
+        ];
+        let row = |report: &mut Self, truth: &str, label: &str, name: &str, options: HeadlessOptions, plain_ms: f64| -> Result<String, String> {
+            let measured = report.render(&options)?;
+            let m = report.compare(measured.image(), truth)?;
+            let memory = measured.report.sidecar["radiance_hints"]["memory_bytes"].as_u64();
+            Ok(format!(
+                "| {label} | {name} | {} | {} | {} | {:.3} | {:.2} |\n",
+                if options.rh_cascade.is_some() { "3 levels × 24×12×24".to_string() } else { measured.hints() },
+                memory.map_or("–".into(), mib),
+                metrics_cells(&m),
+                m.blocks_over_half_off,
+                measured.frame_ms() / plain_ms
+            ))
+        };
+        for (scene, truth, label) in scenes {
+            let plain = self.render(&HeadlessOptions { scene: scene.clone(), frames: STILL_FRAMES, ..Default::default() })?;
+            let plain_ms = plain.frame_ms();
+            for (name, rh) in &settings {
+                let mut options = rh_options(scene.clone(), rh.clone());
+                options.rh_fit_cells = true;
+                out += &row(self, truth, label, name, options, plain_ms)?;
+            }
+            if scene == StandardScene::OpenField {
+                let options = HeadlessOptions { rh_cascade: Some((3, bevy::math::Vec3::new(12.0, 6.0, 12.0))), ..rh_options(scene.clone(), RadianceHintsVolume::MEDIUM) };
+                out += &row(self, truth, label, "camera-centred cascade, 3 levels (0.5, 1, 2 m cells)", options, plain_ms)?;
+            }
+        }
+        for (scene, truth, label) in [
+            (StandardScene::Dynamic, "dynamic", "dynamic at rest (6 m, point light: cube RSM)"),
+            (StandardScene::EmissivePanel, "emissive_panel", "emissive_panel (2 m, emissive panel only)"),
+        ] {
+            let plain = self.render(&HeadlessOptions { scene: scene.clone(), frames: STILL_FRAMES, ..Default::default() })?;
+            let plain_ms = plain.frame_ms();
+            out += &row(self, truth, label, "**default** (medium)", rh_options(scene.clone(), RadianceHintsVolume::MEDIUM), plain_ms)?;
         }
         Ok(out)
     }

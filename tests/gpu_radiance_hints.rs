@@ -10,7 +10,7 @@ use bevy_diffuse_gi::camera::{GiMethod, GiOutput};
 use bevy_diffuse_gi::hdr_image::HdrImage;
 use bevy_diffuse_gi::headless::{HeadlessMethod, HeadlessOptions};
 use bevy_diffuse_gi::metrics;
-use bevy_diffuse_gi::radiance_hints::{DepthOcclusion, RadianceHintsVolume};
+use bevy_diffuse_gi::radiance_hints::{DepthOcclusion, GridSizing, RadianceHintsVolume};
 use bevy_diffuse_gi::scenes::StandardScene;
 use common::{Region, check, luminance, render};
 
@@ -151,6 +151,7 @@ fn absurd_settings_are_clamped_and_still_render_finite_light() {
         r_max: f32::NAN,
         depth_occlusion: Some(DepthOcclusion { samples: 0, strength: f32::NAN }),
         reconstruction_samples: 0,
+        sizing: GridSizing::Adaptive { hints: 0, max_cell: f32::NAN, max_hints: u32::MAX },
         ..RadianceHintsVolume::LOW
     };
     let image = render(&HeadlessOptions {
@@ -219,5 +220,232 @@ fn irradiance_volume_output_lights_the_scene_through_bevys_light_probe() {
         &indirect,
         Some(&truth),
         format!("IrradianceVolume output: block {:.4}, energy {:.4}", m.block_relative_rmse, m.energy_ratio),
+    );
+}
+
+/// Block RMSE, energy and blocks more than 50 % off of `image` against `truth`, checked against what was
+/// measured on lavapipe (`docs/radiance_hints.md`, § game scale) with a margin for the sampling.
+fn within_measured(test: &str, image: &HdrImage, truth: &HdrImage, block: f64, energy: f64, off: f64) {
+    check(test, !image.has_non_finite(), image, Some(truth), "NaN or Inf in the indirect light".into());
+    let m = metrics::compare(image, truth).expect("comparable images");
+    eprintln!(
+        "{test}: block {:.4}, energy {:.4}, blocks > 50 % off {:.3}",
+        m.block_relative_rmse, m.energy_ratio, m.blocks_over_half_off
+    );
+    check(
+        test,
+        m.block_relative_rmse <= block + 0.03
+            && (m.energy_ratio - energy).abs() <= 0.05
+            && m.blocks_over_half_off <= off + 0.03,
+        image,
+        Some(truth),
+        format!(
+            "block {:.4} (measured {block}), energy {:.4} (measured {energy}), blocks > 50 % off {:.3} (measured {off})",
+            m.block_relative_rmse, m.energy_ratio, m.blocks_over_half_off
+        ),
+    );
+}
+
+#[test]
+fn the_default_volume_is_right_in_the_large_standard_scenes() {
+    // The default's adaptive grid, fitted to each scene by the headless renderer as a game would place
+    // one volume around its level. `sponza_like` is lit by the sun (a directional RSM), `cellar` by a
+    // spot light seen from the next room.
+    for (scene, truth, block, energy, off) in [
+        (StandardScene::SponzaLike, "sponza_like.exr", MEASURED_SPONZA.0, MEASURED_SPONZA.1, MEASURED_SPONZA.2),
+        (StandardScene::Cellar, "cellar.exr", MEASURED_CELLAR.0, MEASURED_CELLAR.1, MEASURED_CELLAR.2),
+        (StandardScene::OpenField, "open_field.exr", MEASURED_FIELD.0, MEASURED_FIELD.1, MEASURED_FIELD.2),
+    ] {
+        let test = format!("rh_default_{}", scene.name());
+        let image = rh(scene, RadianceHintsVolume::default());
+        within_measured(&test, &image, &ground_truth(truth), block, energy, off);
+    }
+}
+
+/// Measured on lavapipe at the default settings: (block relative RMSE, energy, blocks > 50 % off).
+const MEASURED_SPONZA: (f64, f64, f64) = (0.272, 1.017, 0.027);
+const MEASURED_CELLAR: (f64, f64, f64) = (0.232, 0.900, 0.012);
+/// Far from the ≤ 0.30 target: 1 m cells over a 60 m field (docs/radiance_hints.md, § game scale).
+const MEASURED_FIELD: (f64, f64, f64) = (0.512, 1.160, 0.489);
+const MEASURED_POINT: (f64, f64, f64) = (0.111, 1.025, 0.004);
+const MEASURED_PANEL: (f64, f64, f64) = (0.358, 1.104, 0.135);
+
+#[test]
+fn a_point_light_bounces_through_its_cube_rsm() {
+    // The `dynamic` scene at pose 0 (nothing moves): a point light, whose RSM is a cube of six faces.
+    let test = "rh_point_light";
+    let image = rh(StandardScene::Dynamic, RadianceHintsVolume::default());
+    within_measured(test, &image, &ground_truth("dynamic.exr"), MEASURED_POINT.0, MEASURED_POINT.1, MEASURED_POINT.2);
+}
+
+#[test]
+fn an_emissive_panel_alone_lights_the_room_in_its_own_colour() {
+    // No analytic light: every lit pixel but the panel is light Radiance Hints injected from the
+    // panel's emitter samples and bounced.
+    let test = "rh_emissive_panel";
+    let image = rh(StandardScene::EmissivePanel, RadianceHintsVolume::default());
+    let truth = ground_truth("emissive_panel.exr");
+    let floor = luminance(FLOOR_BY_RED.mean(test, &image));
+    check(test, floor > 0.05, &image, Some(&truth), format!("no light from the panel on the floor: {floor}"));
+    // The panel's warm colour: the image's red : green : blue as in the truth (white surfaces
+    // dominate), within 10 %.
+    let colour = |i: &HdrImage| {
+        let s = i.pixels.iter().filter(|p| p[3] > 0.5).fold([0.0f64; 3], |a, p| [a[0] + p[0] as f64, a[1] + p[1] as f64, a[2] + p[2] as f64]);
+        [s[0] / s[1], s[2] / s[1]]
+    };
+    let (got, want) = (colour(&image), colour(&truth));
+    check(
+        test,
+        (got[0] / want[0] - 1.0).abs() < 0.1 && (got[1] / want[1] - 1.0).abs() < 0.1,
+        &image,
+        Some(&truth),
+        format!("colour R/G, B/G {got:?} against {want:?} in the ground truth"),
+    );
+    within_measured(test, &image, &truth, MEASURED_PANEL.0, MEASURED_PANEL.1, MEASURED_PANEL.2);
+}
+
+/// Luminance along a row band of `image`, one value per column in `x0..x1`.
+fn row_profile(image: &HdrImage, rows: std::ops::Range<u32>, x0: u32, x1: u32) -> Vec<f32> {
+    (x0..x1)
+        .map(|x| {
+            let n = rows.len() as f32;
+            rows.clone().map(|y| { let p = image.get(x, y); luminance([p[0], p[1], p[2]]) }).sum::<f32>() / n
+        })
+        .collect()
+}
+
+#[test]
+fn a_volume_nested_in_a_coarser_one_takes_over_without_a_seam() {
+    use bevy::prelude::*;
+    let test = "rh_nested_volumes";
+    // A coarse volume around the Cornell box (4³ hints of 50 cm) and, in its left part, a fine one
+    // (12 × 24 × 24 hints of 11 cm) whose light is made 3× brighter so that a seam cannot hide: its
+    // field must fade in over its blend band (2 cells, x = 0.08 … 0.3 m on the back wall, pixel columns
+    // ≈ 134–150), not switch on at its face.
+    let coarse = RadianceHintsVolume { sizing: GridSizing::Fixed, resolution: UVec3::splat(4), ..RadianceHintsVolume::MEDIUM };
+    let options = HeadlessOptions {
+        method: HeadlessMethod::Gi(GiMethod::RadianceHints),
+        indirect_only: true,
+        rh: coarse.clone(),
+        rh_fit_cells: false,
+        frames: 24,
+        ..Default::default()
+    };
+    // The volumes are spawned here, so the renderer does not fit its own.
+    let render_volumes = |volumes: Vec<(RadianceHintsVolume, Transform)>| {
+        let _guard = common::render_lock();
+        bevy_diffuse_gi::headless::run_with(&options, move |app| {
+            app.add_systems(Startup, move |mut commands: Commands| {
+                for v in &volumes {
+                    commands.spawn(v.clone());
+                }
+            });
+        })
+        .unwrap_or_else(|e| panic!("headless render failed: {e}"))
+        .image
+    };
+    let around_the_box = (coarse.clone(), Transform::from_scale(Vec3::splat(2.02)));
+    let with_fine = |intensity: f32| {
+        let fine = RadianceHintsVolume { resolution: UVec3::new(12, 24, 24), intensity, ..coarse.clone() };
+        render_volumes(vec![
+            around_the_box.clone(),
+            (fine, Transform::from_xyz(-0.355, 0.0, 0.0).with_scale(Vec3::new(1.31, 2.02, 2.02))),
+        ])
+    };
+    let plain = with_fine(1.0);
+    let nested = with_fine(3.0);
+    check(test, !nested.has_non_finite(), &nested, Some(&plain), "NaN or Inf".into());
+    // The back wall above the boxes, columns 100..190 (x ≈ −0.4 … +0.85 m).
+    let rows = 92..100;
+    let p = row_profile(&nested, rows.clone(), 100, 190);
+    let c = row_profile(&plain, rows, 100, 190);
+    let ratio = |range: std::ops::Range<usize>| range.clone().map(|i| p[i] / c[i]).sum::<f32>() / range.len() as f32;
+    // The fine volume (its light 3× in `nested`) rules left of the band, the coarse one right of its
+    // face.
+    let (inside, outside) = (ratio(10..30), ratio(55..85));
+    check(
+        test,
+        inside > 2.5 && (outside - 1.0).abs() < 0.1,
+        &nested,
+        Some(&plain),
+        format!("brightened / plain fine volume: {inside:.3} inside it (want ≈ 3), {outside:.3} beyond it (want 1)"),
+    );
+    // No seam: across the band (columns 125..160) no pixel-to-pixel step is more than 3× the largest
+    // step 4–8 pixels further on either side. A switch at the face (measured by making the band 0.01
+    // cells: this check then fails), spread over the composite's 3×3 filter, is a few steps of tens of
+    // percent of the light among steps of a few percent; the fade spreads the change over ~16 pixels.
+    let d: Vec<f32> = (0..p.len() - 1).map(|i| (p[i + 1] - p[i]).abs()).collect();
+    let mean = p.iter().sum::<f32>() / p.len() as f32;
+    for i in 25..60 {
+        let further = (i - 8..=i - 4).chain(i + 4..=i + 8).map(|j| d[j]).fold(0.0f32, f32::max);
+        check(
+            test,
+            d[i] <= 3.0 * further + 0.002 * mean,
+            &nested,
+            Some(&plain),
+            format!("seam at column {}: a step of {:.4} where steps 4–8 pixels away are at most {further:.4}", 100 + i, d[i]),
+        );
+    }
+}
+
+/// Pixels of `image` off by more than `factor` either way from the truth around them: from the truth's
+/// mean over every 3×3 window within a pixel of them (the truth's per-pixel noise averaged away; Radiance
+/// Hints has none of its own). A pixel on a silhouette agrees with the windows on its own side of the
+/// edge; a speck or a dotted row agrees with none.
+fn outliers(image: &HdrImage, truth: &HdrImage, factor: f32) -> Vec<(u32, u32, f32, f32)> {
+    let (w, h) = (image.width, image.height);
+    let mean_all = {
+        let lit: Vec<f32> = truth.pixels.iter().filter(|p| p[3] > 0.5).map(|p| luminance([p[0], p[1], p[2]])).collect();
+        lit.iter().sum::<f32>() / lit.len().max(1) as f32
+    };
+    let mut found = Vec::new();
+    for y in 2..h - 2 {
+        for x in 2..w - 2 {
+            let p = image.get(x, y);
+            if p[3] < 0.5 {
+                continue;
+            }
+            let a = luminance([p[0], p[1], p[2]]);
+            let windows: Vec<f32> = (0..9)
+                .filter_map(|k| {
+                    let (cx, cy) = (x + k % 3 - 1, y + k / 3 - 1);
+                    truth.region_mean(cx - 1, cy - 1, cx + 2, cy + 2).map(luminance)
+                })
+                .collect();
+            let Some(&t) = windows.iter().max_by(|a, b| a.total_cmp(b)) else {
+                continue;
+            };
+            let too_bright = windows.iter().all(|&t| a > factor * t);
+            let too_dark = windows.iter().all(|&t| a < t / factor);
+            if t > 0.01 * mean_all && (too_bright || too_dark) {
+                found.push((x, y, a, t));
+            }
+        }
+    }
+    found
+}
+
+#[test]
+fn cellar_wall_junctions_hold_no_outlier_pixels() {
+    // Where walls meet walls, the floor and the ceiling (thin walls, both faces in adjacent voxels),
+    // single pixels must not read the next room's hints or a hint inside the wall: no pixel of the image
+    // may be 3× brighter or darker than the truth around it.
+    let test = "rh_cellar_junctions";
+    let image = rh(StandardScene::Cellar, RadianceHintsVolume::default());
+    let truth = ground_truth("cellar.exr");
+    // The door opening (columns 140..176, rows 75..165) is left out: what shows through it is room A,
+    // and its 20 cm jambs, thinner than a cell, are a thin-wall case of their own (docs, known issues).
+    let found: Vec<_> = outliers(&image, &truth, 3.0)
+        .into_iter()
+        .filter(|&(x, y, _, _)| !((140..176).contains(&x) && (75..165).contains(&y)))
+        .collect();
+    eprintln!("{test}: {} outlier pixels, e.g. {:?}", found.len(), &found[..found.len().min(8)]);
+    if let Ok(path) = std::env::var("RH_OUTLIERS") { std::fs::write(path, format!("{found:?}")).ok(); }
+    check(
+        test,
+        found.is_empty(),
+        &image,
+        Some(&truth),
+        format!("{} pixels more than 3× off the truth around them, e.g. {:?}", found.len(), &found[..found.len().min(8)]),
     );
 }

@@ -70,7 +70,10 @@ fn gi_at(pixel: vec2<i32>, n: vec3<f32>, depth: f32) -> vec3<f32> {
         let q = clamp(base + o, vec2(0), low_size - 1);
         let source = target_pixel(q, GI_SCALE, full_size);
         let d = textureLoad(depth_texture, source, 0);
-        if d <= 0.0 {
+        let texel = textureLoad(gi_texture, q, 0);
+        // Nothing written (a method found no light it could trust there, e.g. a Radiance Hints pixel in
+        // a junction whose every hint lies behind a wall): the neighbours on the same surface fill it.
+        if d <= 0.0 || texel.a <= 0.0 {
             continue;
         }
         // Tent weights over the 4×4 texels (distance from the pixel in low-resolution texels), or flat.
@@ -79,7 +82,7 @@ fn gi_at(pixel: vec2<i32>, n: vec3<f32>, depth: f32) -> vec3<f32> {
         let bilinear = select(tent.x * tent.y, 1.0, GI_SCALE == 1);
         let dz = abs(view_depth(d) - z) / max(z, 1e-4);
         let similarity = exp(-dz * 20.0) * pow(max(dot(normal_at(source), n), 0.0), 8.0);
-        let value = resolve(textureLoad(gi_texture, q, 0));
+        let value = resolve(texel);
         let w = (bilinear + 1e-3) * similarity;
         sum += value * w;
         total += w;

@@ -8,7 +8,9 @@
 //     L_r(p) = ρ(p)/(π N_RH) Σ_n E_n(n)
 // This pass writes E/π (the composite multiplies by ρ and the exposure), times a weight that is 1 inside the
 // volume's box and fades to zero over half a cell outside it (surfaces often lie exactly on the box, a volume
-// fitted to a room), and the weight itself in alpha, so overlapping volumes average.
+// fitted to a room), and the weight itself in alpha, so overlapping volumes average. A volume nested inside
+// a coarser one instead fades in over `blend_band` cells inside its box and is drawn over the coarser one
+// (premultiplied alpha blending), so the finer field takes over without a seam.
 
 #import bevy_core_pipeline::fullscreen_vertex_shader::FullscreenVertexOutput
 #import bevy_render::view::View
@@ -47,8 +49,20 @@ fn reconstruct(in: FullscreenVertexOutput) -> @location(0) vec4<f32> {
     let world = world_at(view.world_from_clip, pixel, size, depth);
 
     let local = world_to_local(volume, world);
-    let inside_cells = (0.5 - abs(local)) * vec3<f32>(volume.resolution.xyz);
-    let weight = saturate(1.0 + 2.0 * min(inside_cells.x, min(inside_cells.y, inside_cells.z)));
+    // Distance in cells to each face (negative outside). A lone volume fades out over half a cell outside
+    // its box; a volume inside a coarser one fades in over `blend_band` cells inside its box from the
+    // faces that lie inside the coarser volume and is drawn over it (the coarser field shows through where
+    // the weight is below 1): no seam at its faces.
+    let res_f = vec3<f32>(volume.resolution.xyz);
+    let below = (local + 0.5) * res_f;
+    let above = (0.5 - local) * res_f;
+    var weight = 1.0;
+    for (var face = 0u; face < 6u; face++) {
+        let axis = face / 2u;
+        let d = select(below[axis], above[axis], face % 2u == 1u);
+        let fades_in = volume.blend_band > 0.0 && ((volume.blend_faces >> face) & 1u) != 0u;
+        weight = min(weight, select(saturate(1.0 + 2.0 * d), smoothstep(0.0, volume.blend_band, d), fades_in));
+    }
     if weight <= 0.0 {
         discard;
     }
@@ -103,6 +117,9 @@ fn reconstruct(in: FullscreenVertexOutput) -> @location(0) vec4<f32> {
     }
     if used == 0.0 {
         // Every sample fell in a wall (a pixel in a tight corner): read the field just off the surface.
+        // Where every hint around it is hidden by the walls that meet there, write nothing: the
+        // composite fills the pixel from its neighbours on the same surface (a hint from the other side
+        // of a wall would be a bright speck).
         let near = world + n * (0.1 * r);
         let lookup = trilinear(near);
         if !lookup.found {

@@ -48,6 +48,9 @@ struct RhVolume {
     // Cells over which a volume nested inside a coarser one fades in from its faces; 0 for volumes that
     // are not nested (they fade out over half a cell outside their box instead).
     blend_band: f32,
+    // Faces a nested volume fades in from: bit 2·axis + side (side 0 at local −0.5); the others, lying on
+    // the coarser volume's boundary, fade out over half a cell outside as a lone volume's faces do.
+    blend_faces: u32,
     // xyz: voxels of the occupancy grid per axis; w: 1 when lookups and injection test visibility through
     // it (`voxel_visibility`).
     occupancy_resolution: vec4<u32>,

@@ -341,6 +341,19 @@ fn attach_camera(
             if method == GiMethod::Vpl {
                 commands.entity(entity).insert(o.vpl.clone());
             }
+            if let Some((levels, extent)) = o.rh_cascade {
+                let rh = RadianceHintsVolume { sizing: crate::radiance_hints::GridSizing::Fixed, ..o.rh.clone() };
+                let defaults = crate::radiance_hints::RadianceHintsCascade::default();
+                commands.entity(entity).insert(crate::radiance_hints::RadianceHintsCascade {
+                    levels,
+                    extent,
+                    settings: RadianceHintsVolume {
+                        resolution: if o.rh_fit_cells { defaults.settings.resolution } else { o.rh.resolution },
+                        ..rh
+                    },
+                    ..defaults
+                });
+            }
         }
     }
 }
@@ -355,7 +368,7 @@ fn spawn_rh_volume(
 ) {
     let uses_rh = headless.options.method == HeadlessMethod::Gi(GiMethod::RadianceHints)
         || headless.options.switch_method.is_some_and(|(_, m)| m == GiMethod::RadianceHints);
-    if !uses_rh || *status != SceneStatus::Ready || !volumes.is_empty() {
+    if !uses_rh || headless.options.rh_cascade.is_some() || *status != SceneStatus::Ready || !volumes.is_empty() {
         return;
     }
     let Some((lo, hi)) = crate::scenes::mesh_bounds(meshes) else {
@@ -363,7 +376,8 @@ fn spawn_rh_volume(
     };
     // A hair larger than the geometry, and never flat.
     let size = ((hi - lo) * 1.002).max(Vec3::splat(0.05));
-    let settings = if headless.options.rh_fit_cells {
+    let fixed = headless.options.rh.sizing == crate::radiance_hints::GridSizing::Fixed;
+    let settings = if headless.options.rh_fit_cells && fixed {
         headless.options.rh.clone().with_cubic_cells(size)
     } else {
         headless.options.rh.clone()
@@ -666,7 +680,7 @@ fn sidecar(
         map.insert("dynamic_pose_frame".into(), json!(scene.frame));
     }
     if let Some((rh, transform)) = &headless.spawned_rh {
-        let (rh, _) = rh.sanitized();
+        let rh = rh.effective(transform.to_matrix());
         map.insert(
             "radiance_hints".into(),
             json!({

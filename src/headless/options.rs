@@ -2,12 +2,12 @@
 
 use std::path::PathBuf;
 
-use bevy::math::UVec2;
+use bevy::math::{UVec2, Vec3};
 use bevy::prelude::default;
 
 use crate::camera::{GiMethod, GiOutput};
 use crate::vpl::VplSettings;
-use crate::radiance_hints::{DepthOcclusion, RadianceHintsVolume};
+use crate::radiance_hints::{DepthOcclusion, GridSizing, RadianceHintsVolume};
 use crate::scenes::StandardScene;
 use crate::sh::ShOrder;
 
@@ -99,6 +99,9 @@ pub struct HeadlessOptions {
     pub vpl: VplSettings,
     /// Fit the hint counts to the scene's proportions (cubic cells), unless `--rh-resolution` was given.
     pub rh_fit_cells: bool,
+    /// Radiance Hints: a camera-centred cascade of this many levels (`--rh-cascade N`, innermost box
+    /// `--rh-cascade-extent XxYxZ` metres) instead of one volume fitted to the scene.
+    pub rh_cascade: Option<(u32, Vec3)>,
     /// GI cameras: reconstruct at half resolution.
     pub half_resolution: bool,
     /// GI cameras: where the bounced light goes.
@@ -145,6 +148,7 @@ impl Default for HeadlessOptions {
             rh: RadianceHintsVolume::default(),
             vpl: VplSettings::default(),
             rh_fit_cells: true,
+            rh_cascade: None,
             half_resolution: false,
             gi_output: GiOutput::Composite,
             debug_view: None,
@@ -164,7 +168,9 @@ pub const USAGE: &str = "\
 usage: headless [--scene cornell|PATH.glb] [--size WxH] [--frames N] [--out FILE.exr]
                 [--method none|reference|rh] [--indirect-only] [--spp N] [--seed S]
                 [--max-bounces N] [--ev100 EV] [--burley-direct] [--pixel-centers]
-                [--preset low|medium|high] [--rh-resolution N|XxYxZ] [--rh-order 2|3]
+                [--preset low|medium|high] [--rh-resolution N|XxYxZ] [--rh-longest N]
+                [--rh-cell M] [--rh-hints N] [--rh-max-hints N] [--rh-cascade LEVELS]
+                [--rh-cascade-extent XxYxZ] [--rh-order 2|3]
                 [--rh-samples N] [--rh-bounces N] [--rh-secondary N] [--rh-rmax M]
                 [--rh-coverage C] [--rh-jitter J] [--rh-blend A] [--rh-threshold T]
                 [--rh-albedo on|off] [--rh-depth-occlusion STEPS] [--rh-reconstruction N]
@@ -303,11 +309,48 @@ pub fn parse_args<'a>(args: impl IntoIterator<Item = &'a str>) -> Result<Headles
                 let parts: Vec<&str> = text.split(['x', 'X']).collect();
                 let n = |t: &str| t.parse::<u32>().map_err(|_| format!("--rh-resolution: `{text}` is not N or XxYxZ"));
                 options.rh_fit_cells = false;
+                options.rh.sizing = GridSizing::Fixed;
                 options.rh.resolution = match parts.as_slice() {
                     [a] => bevy::math::UVec3::splat(n(a)?),
                     [x, y, z] => bevy::math::UVec3::new(n(x)?, n(y)?, n(z)?),
                     _ => return Err(format!("--rh-resolution: `{text}` is not N or XxYxZ")),
                 };
+            }
+            "--rh-cascade" => {
+                let levels = number(flag, value(flag, &mut args)?, 1, 6)?;
+                let extent = options.rh_cascade.map_or(crate::radiance_hints::RadianceHintsCascade::default().extent, |c| c.1);
+                options.rh_cascade = Some((levels, extent));
+            }
+            "--rh-cascade-extent" => {
+                let text = value(flag, &mut args)?;
+                let parts: Vec<f32> = text.split(['x', 'X']).map(|t| any_number(flag, t)).collect::<Result<_, _>>()?;
+                let [x, y, z] = parts[..] else {
+                    return Err(format!("{flag}: `{text}` is not XxYxZ"));
+                };
+                options.rh_cascade = Some((options.rh_cascade.map_or(3, |c| c.0), Vec3::new(x, y, z)));
+            }
+            "--rh-longest" => {
+                // The old fixed presets: cubic cells, N hints along the longest side of the scene.
+                options.rh.sizing = GridSizing::Fixed;
+                options.rh.resolution = bevy::math::UVec3::splat(number(flag, value(flag, &mut args)?, 2, 128)?);
+                options.rh_fit_cells = true;
+            }
+            "--rh-cell" | "--rh-hints" | "--rh-max-hints" => {
+                let text = value(flag, &mut args)?;
+                let (mut hints, mut max_cell, mut max_hints) = match options.rh.sizing {
+                    GridSizing::Adaptive { hints, max_cell, max_hints } => (hints, max_cell, max_hints),
+                    // Start from the default rule.
+                    GridSizing::Fixed => match GridSizing::MEDIUM {
+                        GridSizing::Adaptive { hints, max_cell, max_hints } => (hints, max_cell, max_hints),
+                        GridSizing::Fixed => unreachable!("the default rule is adaptive"),
+                    },
+                };
+                match flag {
+                    "--rh-cell" => max_cell = any_number(flag, text)?,
+                    "--rh-hints" => hints = any_number(flag, text)?,
+                    _ => max_hints = any_number(flag, text)?,
+                }
+                options.rh.sizing = GridSizing::Adaptive { hints, max_cell, max_hints };
             }
             "--rh-order" => {
                 options.rh.sh_order = match value(flag, &mut args)? {

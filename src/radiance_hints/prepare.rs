@@ -53,6 +53,7 @@ pub struct RhVolumeUniform {
     pub emitter_count: u32,
     pub emitter_fraction: f32,
     pub blend_band: f32,
+    pub blend_faces: u32,
     pub occupancy_resolution: UVec4,
 }
 
@@ -396,30 +397,51 @@ pub struct RhVolumesGpu {
 }
 
 /// For each volume, whether its box lies inside the box of another volume with cells at least 10 %
-/// larger: such a volume refines the coarser one where they overlap instead of averaging with it.
-pub fn nested_volumes(volumes: &[super::extract::ExtractedRhVolume]) -> Vec<bool> {
+/// larger — such a volume refines the coarser one where they overlap instead of averaging with it — as a
+/// mask of the faces it fades in from: bit `2·axis + side` (side 0 at −0.5, 1 at +0.5 of its unit cube)
+/// is set for a face that lies inside the coarser volume, clear for one that lies on its boundary (walls
+/// there belong to both volumes, and the coarser field does not go beyond them). 0: not nested.
+pub fn nested_volumes(volumes: &[super::extract::ExtractedRhVolume]) -> Vec<u32> {
     let cell = |v: &super::extract::ExtractedRhVolume| {
         (super::settings::box_size(v.world_from_local) / v.settings.resolution.as_vec3()).length()
     };
-    let corners = |m: Mat4| {
-        (0..8).map(move |i| {
-            m.transform_point3(Vec3::new(
-                if i & 1 == 0 { -0.5 } else { 0.5 },
-                if i & 2 == 0 { -0.5 } else { 0.5 },
-                if i & 4 == 0 { -0.5 } else { 0.5 },
-            ))
-        })
+    let corner = |i: usize| {
+        Vec3::new(
+            if i & 1 == 0 { -0.5 } else { 0.5 },
+            if i & 2 == 0 { -0.5 } else { 0.5 },
+            if i & 4 == 0 { -0.5 } else { 0.5 },
+        )
     };
     volumes
         .iter()
         .map(|inner| {
-            volumes.iter().any(|outer| {
+            let Some(outer) = volumes.iter().find(|outer| {
                 let local_from_world = outer.world_from_local.inverse();
                 outer.entity != inner.entity
                     && cell(outer) > 1.1 * cell(inner)
-                    && corners(inner.world_from_local)
-                        .all(|p| local_from_world.transform_point3(p).abs().max_element() <= 0.5 + 1e-4)
-            })
+                    && (0..8).all(|i| {
+                        let p = inner.world_from_local.transform_point3(corner(i));
+                        local_from_world.transform_point3(p).abs().max_element() <= 0.5 + 1e-4
+                    })
+            }) else {
+                return 0;
+            };
+            let local_from_world = outer.world_from_local.inverse();
+            let outer_size = super::settings::box_size(outer.world_from_local);
+            let margin = cell(inner) / outer_size.max_element().max(1e-6);
+            let mut faces = 0;
+            for axis in 0..3 {
+                for side in 0..2 {
+                    let mut centre = Vec3::ZERO;
+                    centre[axis] = if side == 0 { -0.5 } else { 0.5 };
+                    let p = local_from_world.transform_point3(inner.world_from_local.transform_point3(centre));
+                    if p[axis].abs() < 0.5 - margin {
+                        faces |= 1 << (2 * axis + side);
+                    }
+                }
+            }
+            // Nested with every face on the boundary: the finer volume simply replaces the coarser one.
+            faces | 1 << 6
         })
         .collect()
 }
@@ -636,7 +658,7 @@ pub(crate) fn prepare_rh_volumes(
         let size_z = (volume.world_from_local * Vec4::new(0.0, 0.0, 1.0, 0.0)).truncate().length();
         let extent = Vec3::new(size, size_y, size_z);
         let cell = extent / s.resolution.as_vec3();
-        gpu.nested = nested[index];
+        gpu.nested = nested[index] != 0;
         gpu.cell_diagonal = cell.length();
         let base_seed = frame.0.wrapping_mul(0x9E37_79B9) ^ (index as u32).wrapping_mul(0x85EB_CA6B);
         let mut uniform = RhVolumeUniform {
@@ -663,6 +685,7 @@ pub(crate) fn prepare_rh_volumes(
             emitter_count: state.emitter_count,
             emitter_fraction,
             blend_band: if gpu.nested { NESTED_BLEND_CELLS } else { 0.0 },
+            blend_faces: nested[index],
             occupancy_resolution: gpu.occupancy_resolution.extend(s.voxel_visibility as u32),
         };
         gpu.uniform_offsets.clear();
@@ -795,6 +818,30 @@ pub(crate) fn prepare_rh_bind_groups(
 
 #[cfg(test)]
 mod tests {
+
+    fn volume(index: u32, centre: Vec3, size: Vec3, hints: u32) -> super::super::extract::ExtractedRhVolume {
+        super::super::extract::ExtractedRhVolume {
+            entity: Entity::from_raw_u32(index + 1).expect("valid index"),
+            settings: RadianceHintsVolume { resolution: UVec3::splat(hints), ..RadianceHintsVolume::MEDIUM },
+            world_from_local: Mat4::from_scale_rotation_translation(size, Quat::IDENTITY, centre),
+            voxels: None,
+            export: None,
+        }
+    }
+
+    #[test]
+    fn finer_volumes_inside_coarser_ones_fade_in_from_their_inner_faces_only() {
+        let room = volume(0, Vec3::ZERO, Vec3::splat(2.0), 4);
+        // The left half of the room, finer: its +x face lies inside the room, the other five on its walls.
+        let half = volume(1, Vec3::new(-0.5, 0.0, 0.0), Vec3::new(1.0, 2.0, 2.0), 12);
+        // A volume beside the room, as fine: not nested.
+        let beside = volume(2, Vec3::new(2.5, 0.0, 0.0), Vec3::splat(2.0), 12);
+        let flags = nested_volumes(&[room, half, beside]);
+        assert_eq!(flags[0], 0, "the coarse room is not nested");
+        assert_eq!(flags[1], 1 << 6 | 1 << 1, "only the +x face fades in: {:#b}", flags[1]);
+        assert_eq!(flags[2], 0);
+    }
+
     use super::*;
 
     #[test]

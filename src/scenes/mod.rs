@@ -5,6 +5,9 @@
 //! * [`StandardScene::Cellar`]: two rooms and a door, lit from one, seen from the other (`cellar.rs`).
 //! * [`StandardScene::SponzaLike`]: a 12 m atrium with columns, sunlit through a roof opening
 //!   (`sponza_like.rs`).
+//! * [`StandardScene::EmissivePanel`]: the Cornell box lit only by a glowing ceiling panel
+//!   (`emissive_panel.rs`).
+//! * [`StandardScene::OpenField`]: a 60 m sunlit field with a few buildings (`open_field.rs`).
 //! * [`StandardScene::Dynamic`]: a room with ten moving objects and an orbiting light (`dynamic.rs`).
 //! * [`StandardScene::Gltf`]: any glTF 2.0 file, loaded through Bevy's glTF loader (meshes,
 //!   `StandardMaterial`s, `KHR_lights_punctual` lights, the first camera). Bevy spawns glTF lights without
@@ -18,6 +21,8 @@
 pub mod cellar;
 pub mod cornell;
 pub mod dynamic;
+pub mod emissive_panel;
+pub mod open_field;
 pub mod sponza_like;
 
 use std::path::{Path, PathBuf};
@@ -34,6 +39,8 @@ use crate::light::GiLight;
 pub use cellar::{CELLAR_EV100, cellar_snapshot, spawn_cellar};
 pub use cornell::{CORNELL_EV100, cornell_snapshot, spawn_cornell};
 pub use dynamic::{DYNAMIC_EV100, DynamicScene, dynamic_pose, spawn_dynamic};
+pub use emissive_panel::{EMISSIVE_PANEL_EV100, spawn_emissive_panel};
+pub use open_field::{OPEN_FIELD_EV100, spawn_open_field};
 pub use sponza_like::{SPONZA_EV100, spawn_sponza_like, sponza_like_snapshot};
 
 /// A scene the crate knows how to build.
@@ -49,13 +56,18 @@ pub enum StandardScene {
     SponzaLike,
     /// A room with moving objects and an orbiting light, posed by a frame clock ([`DynamicScene`]).
     Dynamic,
+    /// The Cornell box lit only by a glowing ceiling panel (an emissive material, no analytic light).
+    EmissivePanel,
+    /// A 60 m sunlit field with a few buildings: a large, sparse, open volume.
+    OpenField,
     /// A glTF 2.0 file (`.glb` or `.gltf`).
     Gltf(PathBuf),
 }
 
 impl StandardScene {
     /// Names accepted by [`StandardScene::parse`] besides file paths.
-    pub const NAMES: &'static [&'static str] = &["cornell", "cellar", "sponza_like", "dynamic"];
+    pub const NAMES: &'static [&'static str] =
+        &["cornell", "cellar", "sponza_like", "dynamic", "emissive_panel", "open_field"];
 
     /// A scene name, or a path to a `.glb`/`.gltf` file (which must exist).
     pub fn parse(text: &str) -> Result<Self, String> {
@@ -64,6 +76,8 @@ impl StandardScene {
             "cellar" => Ok(Self::Cellar),
             "sponza_like" => Ok(Self::SponzaLike),
             "dynamic" => Ok(Self::Dynamic),
+            "emissive_panel" => Ok(Self::EmissivePanel),
+            "open_field" => Ok(Self::OpenField),
             path if path.ends_with(".glb") || path.ends_with(".gltf") => {
                 let p = Path::new(path);
                 if !p.is_file() {
@@ -85,6 +99,8 @@ impl StandardScene {
             Self::Cellar => "cellar".into(),
             Self::SponzaLike => "sponza_like".into(),
             Self::Dynamic => "dynamic".into(),
+            Self::EmissivePanel => "emissive_panel".into(),
+            Self::OpenField => "open_field".into(),
             Self::Gltf(path) => path.display().to_string(),
         }
     }
@@ -201,6 +217,14 @@ pub fn spawn_standard_scene(
         }
         StandardScene::Dynamic => {
             spawn_dynamic(commands, meshes, materials, ev100.unwrap_or(DYNAMIC_EV100));
+            commands.insert_resource(SceneStatus::Ready);
+        }
+        StandardScene::EmissivePanel => {
+            spawn_emissive_panel(commands, meshes, materials, ev100.unwrap_or(EMISSIVE_PANEL_EV100));
+            commands.insert_resource(SceneStatus::Ready);
+        }
+        StandardScene::OpenField => {
+            spawn_open_field(commands, meshes, materials, ev100.unwrap_or(OPEN_FIELD_EV100));
             commands.insert_resource(SceneStatus::Ready);
         }
         StandardScene::Gltf(path) => {

@@ -15,7 +15,7 @@ use bevy_egui::{EguiContexts, EguiPlugin, EguiPrimaryContextPass, egui};
 use crate::camera::{DiffuseGi, GiDebugView, GiMethod, GiOutput};
 use crate::vpl::VplSettings;
 use crate::light::GiLight;
-use crate::radiance_hints::{DepthOcclusion, RadianceHintsVolume};
+use crate::radiance_hints::{DepthOcclusion, GridSizing, RadianceHintsVolume};
 use crate::sh::ShOrder;
 
 /// Adds the "Diffuse GI" window.
@@ -34,7 +34,7 @@ fn inspector_ui(
     mut contexts: EguiContexts,
     mut commands: Commands,
     mut cameras: Query<(Entity, Option<&Name>, &mut DiffuseGi, Option<&mut VplSettings>)>,
-    mut volumes: Query<(Entity, Option<&Name>, &mut RadianceHintsVolume)>,
+    mut volumes: Query<(Entity, Option<&Name>, &mut RadianceHintsVolume, &GlobalTransform)>,
     mut lights: Query<(Entity, Option<&Name>, &mut GiLight)>,
     diagnostics: Option<Res<DiagnosticsStore>>,
 ) -> Result {
@@ -85,8 +85,8 @@ fn inspector_ui(
             }
         });
         egui::CollapsingHeader::new("Radiance Hints volumes").default_open(true).show(ui, |ui| {
-            for (entity, name, mut volume) in &mut volumes {
-                ui.push_id(entity, |ui| volume_ui(ui, &label(entity, name), &mut volume));
+            for (entity, name, mut volume, transform) in &mut volumes {
+                ui.push_id(entity, |ui| volume_ui(ui, &label(entity, name), &mut volume, transform));
                 ui.separator();
             }
         });
@@ -161,7 +161,7 @@ fn vpl_ui(ui: &mut egui::Ui, settings: &mut Mut<VplSettings>) {
     }
 }
 
-fn volume_ui(ui: &mut egui::Ui, label: &str, volume: &mut Mut<RadianceHintsVolume>) {
+fn volume_ui(ui: &mut egui::Ui, label: &str, volume: &mut Mut<RadianceHintsVolume>, transform: &GlobalTransform) {
     ui.label(label);
     let mut v = (**volume).clone();
     ui.horizontal(|ui| {
@@ -175,12 +175,25 @@ fn volume_ui(ui: &mut egui::Ui, label: &str, volume: &mut Mut<RadianceHintsVolum
             }
         }
     });
-    ui.horizontal(|ui| {
-        ui.label("hints");
-        for axis in 0..3 {
-            ui.add(egui::DragValue::new(&mut v.resolution[axis]).range(2..=128));
+    let mut adaptive = matches!(v.sizing, GridSizing::Adaptive { .. });
+    ui.checkbox(&mut adaptive, "adaptive grid (cubic cells fitted to the box)");
+    match (adaptive, &mut v.sizing) {
+        (true, GridSizing::Adaptive { hints, max_cell, max_hints }) => {
+            ui.add(egui::Slider::new(hints, 8..=65536).logarithmic(true).text("hints of a small volume"));
+            ui.add(egui::Slider::new(max_cell, 0.05..=4.0).logarithmic(true).text("largest cell (m)"));
+            ui.add(egui::Slider::new(max_hints, 8..=RadianceHintsVolume::MAX_HINTS).logarithmic(true).text("most hints"));
         }
-    });
+        (true, GridSizing::Fixed) => v.sizing = RadianceHintsVolume::MEDIUM.sizing,
+        (false, GridSizing::Adaptive { .. }) => v.sizing = GridSizing::Fixed,
+        (false, GridSizing::Fixed) => {
+            ui.horizontal(|ui| {
+                ui.label("hints");
+                for axis in 0..3 {
+                    ui.add(egui::DragValue::new(&mut v.resolution[axis]).range(2..=128));
+                }
+            });
+        }
+    }
     ui.horizontal(|ui| {
         ui.label("SH order");
         ui.radio_value(&mut v.sh_order, ShOrder::Two, "2 (4 coeffs)");
@@ -189,7 +202,7 @@ fn volume_ui(ui: &mut egui::Ui, label: &str, volume: &mut Mut<RadianceHintsVolum
     ui.add(egui::Slider::new(&mut v.rsm_samples, 1..=512).logarithmic(true).text("RSM samples N_s"));
     ui.add(egui::Slider::new(&mut v.rsm_coverage, 0.01..=1.0).text("coverage c_RSM (directional)"));
     ui.add(egui::Slider::new(&mut v.jitter, 0.0..=1.0).text("jitter (cells)"));
-    ui.add(egui::Slider::new(&mut v.extra_bounces, 0..=8).text("extra bounces"));
+    ui.add(egui::Slider::new(&mut v.extra_bounces, 0..=16).text("extra bounces"));
     ui.add(egui::Slider::new(&mut v.secondary_samples, 1..=128).text("secondary samples N_b"));
     ui.add(egui::Slider::new(&mut v.r_max, 0.0..=50.0).text("r_max (m, 0 = auto)"));
     ui.add(egui::Slider::new(&mut v.bounce_threshold, 0.0..=0.2).text("bounce stop threshold"));
@@ -207,10 +220,15 @@ fn volume_ui(ui: &mut egui::Ui, label: &str, volume: &mut Mut<RadianceHintsVolum
     }
     ui.add(egui::Slider::new(&mut v.reconstruction_samples, 1..=16).text("reconstruction samples N_RH"));
     ui.add(egui::Slider::new(&mut v.intensity, 0.0..=4.0).text("intensity"));
+    let running = v.effective(transform.to_matrix());
+    let r = running.resolution;
     ui.label(format!(
-        "{} hints, {:.2} MiB",
-        v.hint_count(),
-        v.memory_bytes() as f64 / (1024.0 * 1024.0)
+        "{}×{}×{} = {} hints, {:.2} MiB",
+        r.x,
+        r.y,
+        r.z,
+        running.hint_count(),
+        running.memory_bytes() as f64 / (1024.0 * 1024.0)
     ));
     if v != **volume {
         **volume = v;
