@@ -18,8 +18,9 @@
 //!
 //! # Cost
 //! Regenerated only when the snapshot's geometry or materials change, and then only the instances whose
-//! material emits are visited: O(instances + emissive triangles + samples) on the main thread. Scenes
-//! without emissive materials get an empty set, and the methods skip their emitter pass.
+//! material emits are visited: O(instances + emissive triangles + samples) on the main thread; a change
+//! that leaves the samples as they were (another mesh moved) is not passed on. Scenes without emissive
+//! materials get an empty set, and the methods skip their emitter pass.
 //!
 //! # Known issues
 //! * Emissive textures are not read (the emitter's colour is `emissive` alone), as in the tracer.
@@ -92,8 +93,9 @@ fn update_emitters(
         return;
     }
     let (samples, power) = sample_emitters(&snapshot, exposure, MAX_EMITTER_SAMPLES);
-    // Scenes without emitters keep the same (empty) set: no change to report.
-    if samples.is_empty() && emitters.samples.is_empty() {
+    // The same set (no emitters, or a change that moved only other meshes): no change to report, so
+    // the volumes do not update for it.
+    if *emitters.samples == samples {
         emitters.key = key;
         return;
     }

@@ -71,3 +71,26 @@ fn valid_presets_say_nothing() {
     }
     assert!(app.world().resource::<DiffuseGiWarnings>().messages.is_empty());
 }
+
+#[test]
+fn invalid_cascade_settings_warn_once_each_and_still_give_sane_levels() {
+    use bevy_diffuse_gi::radiance_hints::{CascadeLevel, RadianceHintsCascade};
+    let mut app = app_with((
+        RadianceHintsCascade { levels: 100, scale: f32::NAN, extent: Vec3::NAN, ..default() },
+        Transform::from_xyz(1.0, 2.0, 3.0),
+    ));
+    for _ in 0..10 {
+        app.update();
+    }
+    let messages = &app.world().resource::<DiffuseGiWarnings>().messages;
+    for field in ["levels", "scale", "extent"] {
+        let count = messages.iter().filter(|m| m.contains("RadianceHintsCascade") && m.contains(&format!("`{field}`"))).count();
+        assert_eq!(count, 1, "{field}: {messages:#?}");
+    }
+    // Clamped to 6 levels, each a finite, non-empty box.
+    let world = app.world_mut();
+    let mut levels = world.query::<(&CascadeLevel, &Transform)>();
+    let boxes: Vec<_> = levels.iter(world).map(|(l, t)| (l.level, *t)).collect();
+    assert_eq!(boxes.len(), 6, "{boxes:?}");
+    assert!(boxes.iter().all(|(_, t)| t.translation.is_finite() && t.scale.is_finite() && t.scale.min_element() > 0.0));
+}

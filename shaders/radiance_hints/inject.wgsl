@@ -116,6 +116,16 @@ fn path_free(y: vec3<f32>, x: vec3<f32>, n: vec3<f32>, lift: f32) -> bool {
 #endif
 }
 
+// Adds one source's projection to the hint's, rescaled from the receivers that lay in free space to all
+// the samples drawn: the hint stands for the free part of its cell.
+fn add_rescaled(sum: ptr<function, Sh>, part: Sh, samples: f32, receivers: f32) {
+    if receivers > 0.0 {
+        for (var i = 0u; i < SH_COEFS; i++) {
+            (*sum).c[i] += part.c[i] * (samples / receivers);
+        }
+    }
+}
+
 @compute @workgroup_size(#{WORKGROUP_SIZE})
 fn inject(@builtin(global_invocation_id) gid: vec3<u32>) {
     let index = gid.x;
@@ -200,12 +210,7 @@ fn inject(@builtin(global_invocation_id) gid: vec3<u32>) {
 #endif
             sh_add(&light_sh, w, contribution);
         }
-        if receivers > 0.0 {
-            let scale = f32(samples) / receivers;
-            for (var i = 0u; i < SH_COEFS; i++) {
-                sh.c[i] += light_sh.c[i] * scale;
-            }
-        }
+        add_rescaled(&sh, light_sh, f32(samples), receivers);
     }
 
     // The emissive surfaces, sampled like one more light.
@@ -241,12 +246,7 @@ fn inject(@builtin(global_invocation_id) gid: vec3<u32>) {
 #endif
         sh_add(&emitter_sh, w, contribution);
     }
-    if emitter_receivers > 0.0 {
-        let scale = f32(emitter_samples) / emitter_receivers;
-        for (var i = 0u; i < SH_COEFS; i++) {
-            sh.c[i] += emitter_sh.c[i] * scale;
-        }
-    }
+    add_rescaled(&sh, emitter_sh, f32(emitter_samples), emitter_receivers);
 
     let base = index * SH_FLOATS;
     for (var i = 0u; i < SH_COEFS; i++) {

@@ -64,7 +64,8 @@ impl RadianceHintsCascade {
     /// The box (centre, size) of level `k` for a camera at `camera`: centred on the camera, snapped to
     /// the level's cells.
     pub fn level_box(&self, k: u32, camera: Vec3) -> (Vec3, Vec3) {
-        let extent = sanitize_extent(self.extent) * self.scale.clamp(1.5, 8.0).powi(k as i32);
+        let scale = if self.scale.is_finite() { self.scale.clamp(1.5, 8.0) } else { 2.0 };
+        let extent = sanitize_extent(self.extent) * scale.powi(k.min(5) as i32);
         let cell = extent / self.settings.resolution.max(UVec3::splat(2)).as_vec3();
         let camera = if camera.is_finite() { camera } else { Vec3::ZERO };
         ((camera / cell).round() * cell, extent)
@@ -73,6 +74,31 @@ impl RadianceHintsCascade {
 
 fn sanitize_extent(extent: Vec3) -> Vec3 {
     if extent.is_finite() { extent.clamp(Vec3::splat(0.1), Vec3::splat(10_000.0)) } else { Vec3::new(12.0, 6.0, 12.0) }
+}
+
+/// Warns once per camera about cascade settings outside their documented ranges (they are clamped).
+pub(crate) fn validate_cascades(
+    cascades: Query<(Entity, &RadianceHintsCascade), Changed<RadianceHintsCascade>>,
+    mut warned: Local<bevy::platform::collections::HashSet<(Entity, &'static str)>>,
+    mut warnings: ResMut<crate::DiffuseGiWarnings>,
+) {
+    for (entity, cascade) in &cascades {
+        let extent_ok = cascade.extent.is_finite()
+            && cascade.extent.cmpge(Vec3::splat(0.1)).all()
+            && cascade.extent.cmple(Vec3::splat(10_000.0)).all();
+        for (field, ok) in [
+            ("levels", (1..=6).contains(&cascade.levels)),
+            ("scale", (1.5..=8.0).contains(&cascade.scale)),
+            ("extent", extent_ok),
+        ] {
+            if !ok && warned.insert((entity, field)) {
+                crate::gi_warning(
+                    &mut warnings,
+                    format!("bevy_diffuse_gi: RadianceHintsCascade on {entity}: invalid `{field}`, clamped to its range"),
+                );
+            }
+        }
+    }
 }
 
 /// A volume spawned by a [`RadianceHintsCascade`]: level `level` of `camera`'s cascade.
@@ -150,7 +176,7 @@ mod tests {
         let moved = cascade.level_box(0, camera + Vec3::X * cell0.x).0;
         assert!((moved - c0 - Vec3::X * cell0.x).abs().max_element() < 1e-4);
         // Bad input does not produce bad boxes.
-        let (c, s) = RadianceHintsCascade { extent: Vec3::NAN, ..cascade.clone() }.level_box(2, Vec3::INFINITY);
+        let (c, s) = RadianceHintsCascade { extent: Vec3::NAN, scale: f32::NAN, ..cascade.clone() }.level_box(2, Vec3::INFINITY);
         assert!(c.is_finite() && s.is_finite() && s.min_element() > 0.0);
     }
 }

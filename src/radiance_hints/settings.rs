@@ -155,11 +155,14 @@ pub enum GridSizing {
     Fixed,
     /// Cubic cells fitted to the box (see the type's docs).
     Adaptive {
-        /// Hints of a small volume. Valid range 8–2¹⁸.
+        /// Hints of a small volume. Default 4096 ([`GridSizing::MEDIUM`]). Valid range 8–2¹⁸. Cost: the
+        /// volume's updates and memory are O(hints).
         hints: u32,
-        /// The largest cell edge in metres before the grid grows beyond `hints`. Valid range 0.01–100.
+        /// The largest cell edge in metres before the grid grows beyond `hints`. Default 0.35. Valid
+        /// range 0.01–100. Smaller cells cost more hints in large volumes (up to `max_hints`).
         max_cell: f32,
-        /// Most hints the grid grows to. Valid range `hints`–2¹⁸.
+        /// Most hints the grid grows to. Default 32 768. Valid range `hints`–2¹⁸. Cost: a volume this
+        /// large takes about 7 MiB and updates about 8× slower than a 4096-hint one.
         max_hints: u32,
     },
 }
