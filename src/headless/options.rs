@@ -199,7 +199,11 @@ usage: headless [--scene cornell|PATH.glb] [--size WxH] [--frames N] [--out FILE
   --pixel-centers  path tracer: one ray through each pixel centre, no pixel filter (for the direct check)
   --preset         the method's preset (RadianceHintsVolume or VplSettings) (default medium)
   --rh-*           override one RadianceHintsVolume field (see its docs); the plugin clamps
-                   out-of-range values with a warning. --rh-depth-occlusion 0 turns §8 off
+                   out-of-range values with a warning. --rh-depth-occlusion 0 turns §8 off.
+                   The grid: --rh-resolution (fixed counts), --rh-longest N (fixed cubic cells, N
+                   along the longest side), --rh-cell/--rh-hints/--rh-max-hints (the adaptive rule's
+                   largest cell in m, small-room hints, most hints), --rh-cascade LEVELS and
+                   --rh-cascade-extent XxYxZ (a camera-centred cascade instead of one fitted volume)
   --vpl-*          override one VplSettings field: paths, bounces, seed, bound (b in 1/m², 0 = automatic),
                    ism-resolution (texels), ism-points, ism-bias (fraction of the distance)
   --ssbc-*         override an SSBC field of VplSettings: steps (0 = clamped only), solid-angle (sr),
@@ -515,6 +519,25 @@ mod tests {
         for name in HeadlessMethod::NAMES {
             assert_eq!(HeadlessMethod::parse(name).unwrap().name(), *name);
         }
+    }
+
+    #[test]
+    fn grid_flags_choose_fixed_adaptive_or_cascaded_grids() {
+        let o = parse_args("--method rh --rh-longest 24".split_whitespace()).unwrap();
+        assert_eq!((o.rh.sizing, o.rh.resolution, o.rh_fit_cells), (GridSizing::Fixed, bevy::math::UVec3::splat(24), true));
+        let o = parse_args("--method rh --rh-resolution 4x5x6".split_whitespace()).unwrap();
+        assert_eq!((o.rh.sizing, o.rh_fit_cells), (GridSizing::Fixed, false));
+        let o = parse_args("--method rh --rh-longest 8 --rh-cell 0.5 --rh-max-hints 1000".split_whitespace()).unwrap();
+        let GridSizing::Adaptive { max_cell, max_hints, hints } = o.rh.sizing else {
+            panic!("--rh-cell makes the grid adaptive");
+        };
+        assert_eq!((max_cell, max_hints), (0.5, 1000));
+        assert!(matches!(GridSizing::MEDIUM, GridSizing::Adaptive { hints: h, .. } if h == hints));
+        let o = parse_args("--method rh --rh-cascade 2 --rh-cascade-extent 8x4x8".split_whitespace()).unwrap();
+        assert_eq!(o.rh_cascade, Some((2, Vec3::new(8.0, 4.0, 8.0))));
+        let err = |s: &str| parse_args(s.split_whitespace()).unwrap_err();
+        assert!(err("--rh-cascade 9").contains("--rh-cascade"));
+        assert!(err("--rh-cascade-extent 8x4").contains("XxYxZ"));
     }
 
     #[test]
