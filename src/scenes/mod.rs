@@ -145,6 +145,44 @@ pub(crate) fn boxes_snapshot(
     SceneSnapshot::build(triangles, materials, vec![], lights)
 }
 
+/// The transform of a directional light whose light travels along `direction` (any length).
+pub(crate) fn sun_transform(direction: Vec3) -> Transform {
+    Transform::IDENTITY.looking_to(direction.normalize(), Vec3::Z)
+}
+
+/// Spawns a shadowed sun of `lux` travelling along `direction`, with a [`GiLight`] and Bevy's shadow
+/// cascades `cascades`, named "sun".
+pub(crate) fn spawn_sun(commands: &mut Commands, direction: Vec3, lux: f32, cascades: bevy::light::CascadeShadowConfig) {
+    commands.spawn((
+        DirectionalLight {
+            color: Color::WHITE,
+            illuminance: lux,
+            shadow_maps_enabled: true,
+            ..default()
+        },
+        cascades,
+        sun_transform(direction),
+        GiLight::default(),
+        Name::new("sun"),
+    ));
+}
+
+/// Spawns the [`SceneCamera`] of a scene: a perspective camera at `position` looking at `target` (Y up)
+/// with a vertical field of view of `fov_degrees` and exposure `ev100`.
+pub(crate) fn spawn_scene_camera(commands: &mut Commands, position: Vec3, target: Vec3, fov_degrees: f32, ev100: f32, name: &str) {
+    commands.spawn((
+        Camera3d::default(),
+        Projection::Perspective(PerspectiveProjection {
+            fov: fov_degrees.to_radians(),
+            ..default()
+        }),
+        Transform::from_translation(position).looking_at(target, Vec3::Y),
+        Exposure { ev100 },
+        SceneCamera,
+        Name::new(name.to_string()),
+    ));
+}
+
 /// The camera a standard scene is seen through. The scene gives it a transform, a projection and an
 /// [`Exposure`]; the app adds its render target and settings.
 #[derive(Component, Clone, Copy, Debug, Default)]

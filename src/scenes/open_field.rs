@@ -7,12 +7,9 @@
 //! Ground: y ∈ [−0.3, 0] over x, z ∈ [−30, 30]. The camera stands at eye height near one corner and looks
 //! across the field towards the centre.
 
-use bevy::camera::Exposure;
 use bevy::light::CascadeShadowConfigBuilder;
 use bevy::prelude::*;
 
-use super::SceneCamera;
-use crate::light::GiLight;
 
 /// Ground reflectance (dry earth).
 pub const GROUND: Vec3 = Vec3::new(0.4, 0.36, 0.3);
@@ -47,11 +44,7 @@ pub fn open_field_boxes() -> Vec<(Vec3, Vec3, usize)> {
     ]
 }
 
-fn sun_transform() -> Transform {
-    Transform::IDENTITY.looking_to(SUN_DIRECTION.normalize(), Vec3::Z)
-}
-
-/// Spawns the field with its sun (with a [`GiLight`]) and the [`SceneCamera`].
+/// Spawns the field with its sun (with a [`GiLight`](crate::light::GiLight)) and the [`SceneCamera`](super::SceneCamera).
 pub fn spawn_open_field(
     commands: &mut Commands,
     meshes: &mut Assets<Mesh>,
@@ -59,13 +52,10 @@ pub fn spawn_open_field(
     ev100: f32,
 ) {
     super::spawn_boxes(commands, meshes, materials, &open_field_boxes(), &PALETTE, "field");
-    commands.spawn((
-        DirectionalLight {
-            color: Color::WHITE,
-            illuminance: SUN_LUX,
-            shadow_maps_enabled: true,
-            ..default()
-        },
+    super::spawn_sun(
+        commands,
+        SUN_DIRECTION,
+        SUN_LUX,
         CascadeShadowConfigBuilder {
             num_cascades: 3,
             first_cascade_far_bound: 12.0,
@@ -73,19 +63,6 @@ pub fn spawn_open_field(
             ..default()
         }
         .build(),
-        sun_transform(),
-        GiLight::default(),
-        Name::new("sun"),
-    ));
-    commands.spawn((
-        Camera3d::default(),
-        Projection::Perspective(PerspectiveProjection {
-            fov: 60f32.to_radians(),
-            ..default()
-        }),
-        Transform::from_translation(CAMERA_POSITION).looking_at(CAMERA_TARGET, Vec3::Y),
-        Exposure { ev100 },
-        SceneCamera,
-        Name::new("field camera"),
-    ));
+    );
+    super::spawn_scene_camera(commands, CAMERA_POSITION, CAMERA_TARGET, 60.0, ev100, "field camera");
 }

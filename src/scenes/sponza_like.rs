@@ -7,12 +7,9 @@
 //! square at x ∈ {−4.5, −1.5, 1.5, 4.5}, z = ±2.5, up to 4.5 m, joined along x by 50 cm lintels. A red
 //! banner hangs on the west wall. The camera stands by the west wall looking down the nave at the sun patch.
 
-use bevy::camera::Exposure;
 use bevy::light::CascadeShadowConfigBuilder;
 use bevy::prelude::*;
 
-use super::SceneCamera;
-use crate::light::GiLight;
 
 /// Wall and roof reflectance (warm stone).
 pub const WALL: Vec3 = Vec3::new(0.7, 0.64, 0.55);
@@ -61,11 +58,7 @@ pub fn sponza_boxes() -> Vec<(Vec3, Vec3, usize)> {
     boxes
 }
 
-fn sun_transform() -> Transform {
-    Transform::IDENTITY.looking_to(SUN_DIRECTION.normalize(), Vec3::Z)
-}
-
-/// Spawns the atrium with its sun (with a [`GiLight`]) and the [`SceneCamera`].
+/// Spawns the atrium with its sun (with a [`GiLight`](crate::light::GiLight)) and the [`SceneCamera`](super::SceneCamera).
 pub fn spawn_sponza_like(
     commands: &mut Commands,
     meshes: &mut Assets<Mesh>,
@@ -73,13 +66,10 @@ pub fn spawn_sponza_like(
     ev100: f32,
 ) {
     super::spawn_boxes(commands, meshes, materials, &sponza_boxes(), &[WALL, FLOOR, COLUMN, BANNER], "atrium");
-    commands.spawn((
-        DirectionalLight {
-            color: Color::WHITE,
-            illuminance: SUN_LUX,
-            shadow_maps_enabled: true,
-            ..default()
-        },
+    super::spawn_sun(
+        commands,
+        SUN_DIRECTION,
+        SUN_LUX,
         // Cascades over the atrium only: sharp shadows of the roof's edges.
         CascadeShadowConfigBuilder {
             num_cascades: 2,
@@ -88,21 +78,8 @@ pub fn spawn_sponza_like(
             ..default()
         }
         .build(),
-        sun_transform(),
-        GiLight::default(),
-        Name::new("sun"),
-    ));
-    commands.spawn((
-        Camera3d::default(),
-        Projection::Perspective(PerspectiveProjection {
-            fov: 70f32.to_radians(),
-            ..default()
-        }),
-        Transform::from_translation(CAMERA_POSITION).looking_at(CAMERA_TARGET, Vec3::Y),
-        Exposure { ev100 },
-        SceneCamera,
-        Name::new("atrium camera"),
-    ));
+    );
+    super::spawn_scene_camera(commands, CAMERA_POSITION, CAMERA_TARGET, 70.0, ev100, "atrium camera");
 }
 
 /// The scene as a [`SceneSnapshot`](crate::scene::SceneSnapshot), built on the CPU from the same boxes,
@@ -112,7 +89,7 @@ pub fn sponza_like_snapshot() -> crate::scene::SceneSnapshot {
     let light = SnapshotLightEntry {
         entity: Entity::PLACEHOLDER,
         light: SnapshotLight::Directional {
-            direction: GlobalTransform::from(sun_transform()).forward().as_vec3(),
+            direction: GlobalTransform::from(super::sun_transform(SUN_DIRECTION)).forward().as_vec3(),
             illuminance: Vec3::splat(SUN_LUX),
         },
         shadows_enabled: true,
