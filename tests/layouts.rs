@@ -4,7 +4,7 @@
 
 use bevy::render::render_resource::ShaderType;
 use bevy_diffuse_gi::emitters::GpuEmitter;
-use bevy_diffuse_gi::radiance_hints::prepare::RhVolumeUniform;
+use bevy_diffuse_gi::radiance_hints::prepare::{RhVolumeUniform, VisibilityRegion};
 use bevy_diffuse_gi::rsm::{GpuGiLight, RsmFaceUniform};
 use bevy_diffuse_gi::ssbc::SsbcUniform;
 use bevy_diffuse_gi::vpl::{GpuVpl, VplUniform};
@@ -35,6 +35,7 @@ fn rust_and_wgsl_agree_on_every_gpu_struct() {
         ("rsm/rsm_types.wgsl", "GiLight", GpuGiLight::min_size().get()),
         ("rsm/rsm_types.wgsl", "Emitter", GpuEmitter::min_size().get()),
         ("radiance_hints/rh_types.wgsl", "RhVolume", RhVolumeUniform::min_size().get()),
+        ("radiance_hints/visibility.wgsl", "VisibilityRegion", VisibilityRegion::min_size().get()),
         ("vpl/vpl_types.wgsl", "Vpl", GpuVpl::min_size().get()),
         ("vpl/vpl_types.wgsl", "VplUniform", VplUniform::min_size().get()),
         ("ssbc/ssbc.wgsl", "SsbcUniform", SsbcUniform::min_size().get()),

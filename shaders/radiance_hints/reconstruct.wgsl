@@ -14,16 +14,21 @@
 
 #import bevy_core_pipeline::fullscreen_vertex_shader::FullscreenVertexOutput
 #import bevy_render::view::View
-#import bevy_pbr::pbr_deferred_types::unpack_24bit_normal
+#import bevy_pbr::pbr_deferred_types::{unpack_24bit_normal, unpack_unorm4x8_}
 #import bevy_pbr::utils::{octahedral_decode, interleaved_gradient_noise}
 #import bevy_diffuse_gi::rh_types::{PI, world_to_local, local_to_occupancy, sh_irradiance, cell_index}
-#import bevy_diffuse_gi::rh_sampling::{volume, trilinear, sh_at, load_sh}
-#import bevy_diffuse_gi::rh_occupancy::first_hit_inclusive
+#import bevy_diffuse_gi::rh_sampling::{Trilinear, volume, trilinear_masked, occupancy_voxel, sh_at, load_sh}
+#import bevy_diffuse_gi::rh_occupancy::{first_hit_inclusive, first_hit_from}
+#import bevy_diffuse_gi::rh_packed::{PackedField, add_packed, field_linear, field_nonlinear}
 #import bevy_diffuse_gi::gi_frame::{target_pixel, world_at}
 
 @group(0) @binding(0) var<uniform> view: View;
 @group(0) @binding(1) var depth_texture: texture_depth_2d;
 @group(0) @binding(2) var gbuffer: texture_2d<u32>;
+// The hints each occupancy voxel may use (visibility.wgsl): 8 bits per voxel, 4 voxels per word.
+@group(2) @binding(1) var<storage, read> visibility: array<u32>;
+// Each hint's field in the compact irradiance form (rh_packed.wgsl), for SH order 2.
+@group(2) @binding(2) var<storage, read> packed: array<vec4<u32>>;
 
 // 1 at full resolution, 2 at half resolution.
 const GI_SCALE: i32 = #{GI_SCALE};
@@ -36,6 +41,73 @@ fn basis(n: vec3<f32>) -> mat3x3<f32> {
     let a = -1.0 / (s + n.z);
     let b = n.x * n.y * a;
     return mat3x3(vec3(1.0 + s * n.x * n.x * a, s * b, -s * n.x), vec3(b, s + n.y * n.y * a, -n.y), n);
+}
+
+// The eight hints around a position with the weights of the hints a lookup there may use: the prepared
+// mask of the occupancy voxel holding it (valid hints not hidden behind a surface; `visibility.wgsl`)
+// replaces the eight visibility marches of `rh_sampling::trilinear`.
+fn hint_lookup(local: vec3<f32>) -> Trilinear {
+    let v = occupancy_voxel(local);
+    let res = volume.occupancy_resolution.xyz;
+    let index = v.x + res.x * (v.y + res.y * v.z);
+    let mask = (visibility[index >> 2u] >> (8u * (index & 3u))) & 0xffu;
+    return trilinear_masked(local, mask, v);
+}
+
+// Rays of the near-field occlusion per pixel.
+const NEAR_FIELD_RAYS: u32 = 4u;
+
+// The share of the indirect light a pixel keeps after the occlusion below the hints' scale: the fraction
+// of NEAR_FIELD_RAYS cosine-distributed rays that leave `near_field_range` metres without entering an
+// occupied voxel (surfaces within a voxel of the start, the pixel's own, do not count), turned into the
+// visibility of a surface that also receives what the occluders reflect (Jimenez et al. 2016, Eq. 10,
+// with the pixel's albedo standing for its surroundings'), per channel.
+fn near_field_visibility(world: vec3<f32>, n: vec3<f32>, frame: mat3x3<f32>, rotation: f32, albedo: vec3<f32>) -> vec3<f32> {
+    let occ = vec3<f32>(volume.occupancy_resolution.xyz);
+    // Rays start 1.5 voxels off the surface along its normal, out of the voxels of the pixel's own
+    // surface (which grazing rays would otherwise walk through).
+    let edges = volume.cell.xyz * vec3<f32>(volume.resolution.xyz) / occ;
+    let voxel = max(edges.x, max(edges.y, edges.z));
+    let start = local_to_occupancy(volume, world_to_local(volume, world + n * (1.5 * voxel)));
+    var open = 0.0;
+    for (var k = 0u; k < NEAR_FIELD_RAYS; k++) {
+        // Stratified in the cosine-weighted hemisphere, rotated per pixel.
+        let u = (f32(k) + 0.5) / f32(NEAR_FIELD_RAYS);
+        let phi = rotation + 2.0 * PI * fract(f32(k) * 0.618034);
+        let s = sqrt(u);
+        let d = frame * vec3(s * cos(phi), s * sin(phi), sqrt(1.0 - u));
+        let step = (volume.local_from_world * vec4(d * volume.near_field_range, 0.0)).xyz * occ;
+        if first_hit_inclusive(start, start + step, volume.occupancy_resolution.xyz) < 0.0 {
+            open += 1.0;
+        }
+    }
+    let v = open / f32(NEAR_FIELD_RAYS);
+    let a = 2.0404 * albedo - 0.3324;
+    let b = -4.7951 * albedo + 0.6417;
+    let c = 2.7552 * albedo + 0.6903;
+    return max(vec3(v), ((v * a + b) * v + c) * v);
+}
+
+// Eq. 7 at one hemisphere sample: the irradiance on a surface with normal n of the interpolated field.
+// SH order 2 reads the packed irradiance form (`rh_packed.wgsl`) and turns it into irradiance linearly,
+// clamped at zero, or with Hazel's non-linear reconstruction, which cannot ring below zero; order 3 reads
+// the SH radiance.
+fn sample_irradiance(t: Trilinear, n: vec3<f32>) -> vec3<f32> {
+#if SH_COEFS == 4
+    var field: PackedField;
+    for (var k = 0u; k < 8u; k++) {
+        if t.weights[k] > 0.0 {
+            add_packed(&field, packed[t.cells[k]], t.weights[k]);
+        }
+    }
+#ifdef NONLINEAR_IRRADIANCE
+    return field_nonlinear(field, n);
+#else
+    return field_linear(field, n);
+#endif
+#else
+    return sh_irradiance(sh_at(t), n);
+#endif
 }
 
 @fragment
@@ -81,19 +153,26 @@ fn reconstruct(in: FullscreenVertexOutput) -> @location(0) vec4<f32> {
     return vec4(sh_irradiance(load_sh(cell_index(cell, res)), n) / PI * border, 1.0);
 #else
     let r = volume.cell.w;
-    let origin = world + n * (0.5 * r);
+    // Positions in the volume's local frame from here on (one transform per pixel, not per sample).
+    let origin = world_to_local(volume, world + n * (0.5 * r));
+    let start = local_to_occupancy(volume, origin);
     let frame = basis(n);
     let rotation = 2.0 * PI * interleaved_gradient_noise(vec2<f32>(pixel), 0u);
     let count = max(volume.reconstruction_samples, 1u);
     var irradiance = vec3(0.0);
     var used = 0.0;
+    // The cone samples' azimuths: the first at `rotation`, the rest a fixed step further each (one sine
+    // and cosine per pixel, each next one by rotating the last).
+    let step = 2.0 * PI / f32(max(count - 1u, 1u));
+    let turn = vec2(cos(step), sin(step));
+    var azimuth = vec2(cos(rotation), sin(rotation));
     for (var i = 0u; i < count; i++) {
         var d = n;
         if i > 0u {
-            let phi = rotation + 2.0 * PI * f32(i - 1u) / f32(max(count - 1u, 1u));
-            d = frame * vec3(CONE_SIN * cos(phi), CONE_SIN * sin(phi), CONE_COS);
+            d = frame * vec3(CONE_SIN * azimuth, CONE_COS);
+            azimuth = vec2(azimuth.x * turn.x - azimuth.y * turn.y, azimuth.x * turn.y + azimuth.y * turn.x);
         }
-        var p = origin + d * r;
+        var p = origin + (volume.local_from_world * vec4(d * r, 0.0)).xyz;
         // A sample position must be reachable from the surface: a cone sample half a metre to the side
         // can otherwise land beyond a thin wall, among the next room's hints. Such a sample is pulled back
         // along its path to a voxel before the obstacle. Positions that still see no hint are skipped.
@@ -101,17 +180,16 @@ fn reconstruct(in: FullscreenVertexOutput) -> @location(0) vec4<f32> {
         // another surface (the wall meeting the ceiling at a junction): the sample then stays at the
         // origin instead of marching through that wall into the next room.
         if volume.occupancy_resolution.w != 0u {
-            let start = local_to_occupancy(volume, world_to_local(volume, origin));
-            let end = local_to_occupancy(volume, world_to_local(volume, p));
+            let end = local_to_occupancy(volume, p);
             let t = first_hit_inclusive(start, end, volume.occupancy_resolution.xyz);
             if t >= 0.0 {
                 let voxels = max(length(end - start), 1e-3);
                 p = mix(origin, p, max(t - 1.0 / voxels, 0.0));
             }
         }
-        let lookup = trilinear(p);
+        let lookup = hint_lookup(p);
         if lookup.found {
-            irradiance += sh_irradiance(sh_at(lookup), n);
+            irradiance += sample_irradiance(lookup, n);
             used += 1.0;
         }
     }
@@ -120,16 +198,19 @@ fn reconstruct(in: FullscreenVertexOutput) -> @location(0) vec4<f32> {
         // Where every hint around it is hidden by the walls that meet there, write nothing: the
         // composite fills the pixel from its neighbours on the same surface (a hint from the other side
         // of a wall would be a bright speck).
-        let near = world + n * (0.1 * r);
-        let lookup = trilinear(near);
+        let lookup = hint_lookup(world_to_local(volume, world + n * (0.1 * r)));
         if !lookup.found {
             discard;
         }
-        irradiance = sh_irradiance(sh_at(lookup), n);
+        irradiance = sample_irradiance(lookup, n);
         used = 1.0;
     }
-    irradiance /= used;
-    let radiance_per_albedo = irradiance / PI;
+    if volume.near_field_range > 0.0 {
+        let g = textureLoad(gbuffer, pixel, 0);
+        let albedo = pow(unpack_unorm4x8_(g.r).rgb, vec3(2.2)) * (1.0 - unpack_unorm4x8_(g.b).g);
+        irradiance *= near_field_visibility(world, n, frame, rotation, albedo);
+    }
+    let radiance_per_albedo = irradiance / (PI * used);
     return vec4(radiance_per_albedo * weight, weight);
 #endif
 }

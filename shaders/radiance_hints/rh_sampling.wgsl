@@ -70,6 +70,55 @@ fn trilinear_from(world: vec3<f32>, skip: f32) -> Trilinear {
     return t;
 }
 
+// The trilinear stencil (the lowest of its eight hints) used for every point of occupancy voxel `voxel`:
+// the one around the voxel's centre. With the default grids a voxel never straddles two stencils (hint
+// centres lie on voxel faces); where the occupancy grid is capped it can, and points in the voxel then
+// extrapolate the centre's stencil by up to half a voxel (their weights are clamped).
+fn stencil_base(voxel: vec3<u32>) -> vec3<u32> {
+    let res = volume.resolution.xyz;
+    let centre = (vec3<f32>(voxel) + 0.5) / vec3<f32>(volume.occupancy_resolution.xyz);
+    let g = clamp(centre * vec3<f32>(res) - 0.5, vec3(0.0), vec3<f32>(res - 1u));
+    return min(vec3<u32>(floor(g)), res - 1u);
+}
+
+// Occupancy-grid position of the hint of cell `c`.
+fn stencil_hint_occupancy(c: vec3<u32>) -> vec3<f32> {
+    let hint = (vec3<f32>(c) + 0.5) / vec3<f32>(volume.resolution.xyz) - 0.5;
+    return local_to_occupancy(volume, hint);
+}
+
+// `trilinear` at the volume-local position `local`, with the hints' usability read from a prepared mask
+// instead of marched: `mask` is the visibility mask of `voxel`, the occupancy voxel holding the position
+// (`visibility.wgsl`), bit i for the stencil's hint i. Outside the occupancy grid the nearest voxel's
+// mask applies.
+fn trilinear_masked(local: vec3<f32>, mask: u32, voxel: vec3<u32>) -> Trilinear {
+    let res = volume.resolution.xyz;
+    let g = clamp((local + 0.5) * vec3<f32>(res) - 0.5, vec3(0.0), vec3<f32>(res - 1u));
+    let base = stencil_base(voxel);
+    let f = clamp(g - vec3<f32>(base), vec3(0.0), vec3(1.0));
+    var t: Trilinear;
+    var total = 0.0;
+    for (var i = 0u; i < 8u; i++) {
+        let o = vec3<u32>(i & 1u, (i >> 1u) & 1u, (i >> 2u) & 1u);
+        t.cells[i] = cell_index(min(base + o, res - 1u), res);
+        let w = select(1.0 - f, f, vec3<bool>(o == vec3(1u)));
+        t.weights[i] = select(0.0, w.x * w.y * w.z, ((mask >> i) & 1u) != 0u);
+        total += t.weights[i];
+    }
+    t.found = total > 1e-4;
+    for (var i = 0u; i < 8u; i++) {
+        t.weights[i] = select(0.0, t.weights[i] / total, t.found);
+    }
+    return t;
+}
+
+// The occupancy voxel holding a volume-local position, clamped to the grid.
+fn occupancy_voxel(local: vec3<f32>) -> vec3<u32> {
+    let o = local_to_occupancy(volume, local);
+    let res = volume.occupancy_resolution.xyz;
+    return vec3<u32>(clamp(floor(o), vec3(0.0), vec3<f32>(res - 1u)));
+}
+
 fn load_sh(cell: u32) -> Sh {
     var sh: Sh;
     let base = cell * SH_FLOATS;

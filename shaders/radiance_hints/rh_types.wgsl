@@ -54,6 +54,8 @@ struct RhVolume {
     // xyz: voxels of the occupancy grid per axis; w: 1 when lookups and injection test visibility through
     // it (`voxel_visibility`).
     occupancy_resolution: vec4<u32>,
+    // Range of the reconstruction's near-field occlusion in metres (0: off).
+    near_field_range: f32,
 }
 
 // Volume-local position → occupancy-grid coordinates (voxel v spans [v, v + 1)).

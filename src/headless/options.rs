@@ -7,7 +7,7 @@ use bevy::prelude::default;
 
 use crate::camera::{GiMethod, GiOutput};
 use crate::vpl::VplSettings;
-use crate::radiance_hints::{DepthOcclusion, GridSizing, RadianceHintsVolume};
+use crate::radiance_hints::{DepthOcclusion, GridSizing, IrradianceReconstruction, RadianceHintsVolume};
 use crate::scenes::StandardScene;
 use crate::sh::ShOrder;
 
@@ -149,7 +149,7 @@ impl Default for HeadlessOptions {
             vpl: VplSettings::default(),
             rh_fit_cells: true,
             rh_cascade: None,
-            half_resolution: false,
+            half_resolution: crate::camera::DiffuseGi::default().half_resolution,
             gi_output: GiOutput::Composite,
             debug_view: None,
             dump_volume: None,
@@ -174,12 +174,13 @@ usage: headless [--scene cornell|PATH.glb] [--size WxH] [--frames N] [--out FILE
                 [--rh-samples N] [--rh-bounces N] [--rh-secondary N] [--rh-rmax M]
                 [--rh-coverage C] [--rh-jitter J] [--rh-blend A] [--rh-threshold T]
                 [--rh-albedo on|off] [--rh-depth-occlusion STEPS] [--rh-reconstruction N]
+                [--rh-irradiance linear|nonlinear] [--rh-near-field CELLS]
                 [--rh-visibility voxels|none] [--rh-secondary-transport voxel|paper] [--rh-refinement N]
                 [--dump-volume FILE.json]
                 [--vpl-paths N] [--vpl-bounces N] [--vpl-seed S] [--vpl-bound B] [--vpl-ism-resolution N]
                 [--vpl-ism-points N] [--vpl-ism-bias F] [--ssbc-steps N] [--ssbc-solid-angle SR]
                 [--ssbc-levels N] [--ssbc-blur on|off]
-                [--half-res] [--gi-output composite|irradiance-volume] [--debug-view VIEW]
+                [--half-res|--full-res] [--gi-output composite|irradiance-volume] [--debug-view VIEW]
                 [--animate-light] [--animate-meshes N] [--pose-frame K] [--stop-animation-at K]
                 [--extra-triangles N] [--switch-method FRAMES:rh|vpl]
 
@@ -208,7 +209,8 @@ usage: headless [--scene cornell|PATH.glb] [--size WxH] [--frames N] [--out FILE
                    ism-resolution (texels), ism-points, ism-bias (fraction of the distance)
   --ssbc-*         override an SSBC field of VplSettings: steps (0 = clamped only), solid-angle (sr),
                    levels, blur (on|off)
-  --half-res       compute the bounced light at half resolution
+  --half-res       compute the bounced light at half resolution (the default)
+  --full-res       compute the bounced light at full resolution
   --gi-output      composite (per pixel, default) or irradiance-volume (Bevy's light probe)
   --debug-view     indirect, irradiance, hint-grid, rsm-flux, rsm-normal, rsm-position,
                    vpl-clamped, vpl-compensation or vpl-positions
@@ -372,6 +374,14 @@ pub fn parse_args<'a>(args: impl IntoIterator<Item = &'a str>) -> Result<Headles
             "--rh-blend" => options.rh.temporal_blend = any_number(flag, value(flag, &mut args)?)?,
             "--rh-threshold" => options.rh.bounce_threshold = any_number(flag, value(flag, &mut args)?)?,
             "--rh-reconstruction" => options.rh.reconstruction_samples = any_number(flag, value(flag, &mut args)?)?,
+            "--rh-near-field" => options.rh.near_field_occlusion = any_number(flag, value(flag, &mut args)?)?,
+            "--rh-irradiance" => {
+                options.rh.irradiance = match value(flag, &mut args)? {
+                    "linear" => IrradianceReconstruction::Linear,
+                    "nonlinear" => IrradianceReconstruction::NonLinear,
+                    other => return Err(format!("--rh-irradiance: `{other}` is not linear or nonlinear")),
+                }
+            }
             "--rh-albedo" => {
                 options.rh.albedo_volume = on_off(flag, value(flag, &mut args)?)?
             }
@@ -397,6 +407,7 @@ pub fn parse_args<'a>(args: impl IntoIterator<Item = &'a str>) -> Result<Headles
             "--rh-refinement" => options.rh.refinement_updates = any_number(flag, value(flag, &mut args)?)?,
             "--dump-volume" => options.dump_volume = Some(PathBuf::from(value(flag, &mut args)?)),
             "--half-res" => options.half_resolution = true,
+            "--full-res" => options.half_resolution = false,
             "--animate-light" => options.animate_light = true,
             "--animate-meshes" => options.animate_meshes = number(flag, value(flag, &mut args)?, 0, 10)?,
             "--pose-frame" => options.pose_frame = number(flag, value(flag, &mut args)?, 0.0, 1.0e6)?,

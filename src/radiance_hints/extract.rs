@@ -87,6 +87,7 @@ fn field_value(v: &RadianceHintsVolume, field: &str) -> String {
         "refinement_updates" => v.refinement_updates.to_string(),
         "reconstruction_samples" => v.reconstruction_samples.to_string(),
         "intensity" => v.intensity.to_string(),
+        "near_field_occlusion" => v.near_field_occlusion.to_string(),
         _ => format!("{:?}", v.depth_occlusion),
     }
 }

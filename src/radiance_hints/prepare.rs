@@ -18,6 +18,7 @@ use super::extract::ExtractedRhVolumes;
 use crate::camera::GiMethod;
 use crate::composite::{ExtractedDiffuseGi, GI_TARGET_FORMAT};
 use super::settings::RadianceHintsVolume;
+use super::voxelize::VoxelChange;
 use super::{RhShaders, sh_floats};
 use crate::emitters::{EmitterSamples, GpuEmitter};
 use crate::rsm::RsmAtlas;
@@ -55,6 +56,36 @@ pub struct RhVolumeUniform {
     pub blend_band: f32,
     pub blend_faces: u32,
     pub occupancy_resolution: UVec4,
+    pub near_field_range: f32,
+}
+
+/// The box of occupancy voxels whose visibility masks a dispatch redoes (`VisibilityRegion` in
+/// `shaders/radiance_hints/visibility.wgsl`).
+#[derive(ShaderType, Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct VisibilityRegion {
+    /// First voxel (x a multiple of 4: masks are written four voxels to a word).
+    pub origin: UVec4,
+    /// Words along x, voxels along y and z.
+    pub size: UVec4,
+}
+
+impl VisibilityRegion {
+    /// The voxels `lo..=hi` of a grid of `res` voxels, widened to whole words.
+    pub fn covering(lo: UVec3, hi: UVec3, res: UVec3) -> Self {
+        let hi = hi.min(res.max(UVec3::ONE) - 1);
+        let lo = lo.min(hi);
+        let x0 = lo.x / 4 * 4;
+        let words = (hi.x + 1).div_ceil(4) - x0 / 4;
+        Self {
+            origin: UVec4::new(x0, lo.y, lo.z, 0),
+            size: UVec4::new(words, hi.y - lo.y + 1, hi.z - lo.z + 1, 0),
+        }
+    }
+
+    /// Threads of the dispatch (one per word).
+    pub fn words(&self) -> u32 {
+        self.size.x * self.size.y * self.size.z
+    }
 }
 
 /// The volume passes.
@@ -65,6 +96,8 @@ pub enum RhPass {
     Decide,
     Blend,
     Export,
+    /// The per-voxel hint masks of the reconstruction (`visibility.wgsl`).
+    Visibility,
 }
 
 /// Key of the compute pipelines.
@@ -85,6 +118,8 @@ pub struct RhReconstructKey {
     /// The volume lies inside a coarser one: it is drawn after it and over it, fading in over
     /// [`NESTED_BLEND_CELLS`] inside its box, instead of being averaged with it.
     pub nested: bool,
+    /// [`IrradianceReconstruction::NonLinear`](super::settings::IrradianceReconstruction::NonLinear).
+    pub nonlinear_irradiance: bool,
 }
 
 /// Cells over which a volume nested inside a coarser one fades in from its box's faces.
@@ -110,6 +145,10 @@ pub struct RhPipelines {
     pub export_layout: BindGroupLayoutDescriptor,
     /// Group 0 of the reconstruction: view, depth, G-buffer.
     pub reconstruct_view_layout: BindGroupLayoutDescriptor,
+    /// Group 0 of the visibility-mask pass: the region to redo and the masks.
+    pub visibility_output_layout: BindGroupLayoutDescriptor,
+    /// Group 2 of the reconstruction: the occupancy bits, the visibility masks and the packed field.
+    pub lookup_layout: BindGroupLayoutDescriptor,
     shaders: RhShaders,
     fullscreen: VertexState,
 }
@@ -166,7 +205,7 @@ impl FromWorld for RhPipelines {
             ),
             blend_layout: BindGroupLayoutDescriptor::new(
                 "diffuse_gi_rh_blend_layout",
-                &BindGroupLayoutEntries::sequential(compute, (uniform(), ro(), rw())),
+                &BindGroupLayoutEntries::sequential(compute, (uniform(), ro(), rw(), rw())),
             ),
             export_layout: BindGroupLayoutDescriptor::new(
                 "diffuse_gi_rh_export_layout",
@@ -174,6 +213,14 @@ impl FromWorld for RhPipelines {
                     compute,
                     texture_storage_3d(TextureFormat::Rgba16Float, StorageTextureAccess::WriteOnly),
                 ),
+            ),
+            visibility_output_layout: BindGroupLayoutDescriptor::new(
+                "diffuse_gi_rh_visibility_output_layout",
+                &BindGroupLayoutEntries::sequential(compute, (uniform_buffer::<VisibilityRegion>(false), rw())),
+            ),
+            lookup_layout: BindGroupLayoutDescriptor::new(
+                "diffuse_gi_rh_lookup_layout",
+                &BindGroupLayoutEntries::sequential(ShaderStages::FRAGMENT, (ro(), ro(), ro())),
             ),
             reconstruct_view_layout: BindGroupLayoutDescriptor::new(
                 "diffuse_gi_rh_reconstruct_view_layout",
@@ -238,6 +285,16 @@ impl SpecializedComputePipeline for RhPipelines {
             }
             RhPass::Decide => ("diffuse_gi_rh_decide_pipeline", vec![self.decide_layout.clone()], &self.shaders.decide, "decide"),
             RhPass::Blend => ("diffuse_gi_rh_blend_pipeline", vec![self.blend_layout.clone()], &self.shaders.blend, "blend"),
+            RhPass::Visibility => (
+                "diffuse_gi_rh_visibility_pipeline",
+                vec![
+                    self.visibility_output_layout.clone(),
+                    self.sample_layout.clone(),
+                    self.occupancy_layout.clone(),
+                ],
+                &self.shaders.visibility,
+                "visibility_masks",
+            ),
             RhPass::Export => (
                 "diffuse_gi_rh_export_pipeline",
                 vec![self.export_layout.clone(), self.sample_layout.clone()],
@@ -265,12 +322,15 @@ impl SpecializedRenderPipeline for RhPipelines {
         if key.hint_grid {
             shader_defs.push("HINT_GRID".into());
         }
+        if key.nonlinear_irradiance {
+            shader_defs.push("NONLINEAR_IRRADIANCE".into());
+        }
         RenderPipelineDescriptor {
             label: Some("diffuse_gi_rh_reconstruct_pipeline".into()),
             layout: vec![
                 self.reconstruct_view_layout.clone(),
                 self.sample_layout.clone(),
-                self.occupancy_layout.clone(),
+                self.lookup_layout.clone(),
             ],
             vertex: self.fullscreen.clone(),
             fragment: Some(FragmentState {
@@ -323,6 +383,15 @@ pub struct RhVolumeGpu {
     pub albedo: Buffer,
     /// The occupancy bits.
     pub occupancy: Buffer,
+    /// Per occupancy voxel, the mask of its stencil's hints a lookup may use (8 bits, 4 voxels a word).
+    pub visibility: Buffer,
+    /// The displayed result in the reconstruction's compact irradiance form (`rh_packed.wgsl`, 16 B per
+    /// hint), written by the blend.
+    pub packed: Buffer,
+    /// The region uniform of the visibility-mask pass.
+    pub visibility_region: Buffer,
+    /// The masks to redo before the next reconstruction (after the voxels changed).
+    pub visibility_pending: Option<VisibilityRegion>,
     pub occupancy_resolution: UVec3,
     pub partials: Buffer,
     /// Indirect dispatch arguments, one slot of three `u32` per extra bounce.
@@ -364,6 +433,7 @@ pub struct RhVolumePipelines {
     pub decide: CachedComputePipelineId,
     pub blend: CachedComputePipelineId,
     pub export: CachedComputePipelineId,
+    pub visibility: CachedComputePipelineId,
 }
 
 /// Bind groups of one volume, rebuilt every frame (the uniform buffer may move).
@@ -376,6 +446,10 @@ pub struct RhVolumeBindGroups {
     pub bounce: [(BindGroup, BindGroup); 2],
     pub decide: BindGroup,
     pub blend: BindGroup,
+    /// The visibility-mask pass's output (group 0).
+    pub visibility_output: BindGroup,
+    /// Group 2 of the reconstruction: occupancy and visibility masks.
+    pub lookup: BindGroup,
 }
 
 /// Every volume's GPU state, their uniforms, and the per-frame bookkeeping.
@@ -511,6 +585,15 @@ impl RhVolumeGpu {
                 occupancy_words(settings.resolution) * 4,
                 storage,
             ),
+            visibility: buffer(device, "diffuse_gi_rh_visibility", occupancy_words(settings.resolution) * 32, storage),
+            packed: buffer(device, "diffuse_gi_rh_packed", hints as u64 * 16, storage),
+            visibility_region: buffer(
+                device,
+                "diffuse_gi_rh_visibility_region",
+                VisibilityRegion::min_size().get(),
+                BufferUsages::UNIFORM | BufferUsages::COPY_DST,
+            ),
+            visibility_pending: None,
             occupancy_resolution: super::voxelize::occupancy_resolution(settings.resolution),
             partials: buffer(device, "diffuse_gi_rh_partials", workgroups as u64 * 8, storage),
             args: buffer(
@@ -549,7 +632,7 @@ impl RhVolumeGpu {
 
     /// Bytes of GPU memory the volume's buffers hold.
     pub fn memory_bytes(&self) -> u64 {
-        [&self.delta[0], &self.delta[1], &self.sum, &self.result, &self.distances, &self.albedo, &self.occupancy]
+        [&self.delta[0], &self.delta[1], &self.sum, &self.result, &self.distances, &self.albedo, &self.occupancy, &self.visibility, &self.packed]
             .iter()
             .map(|b| b.size())
             .sum()
@@ -629,6 +712,22 @@ pub(crate) fn prepare_rh_volumes(
                 None => vec![0u32; words],
             };
             queue.write_buffer(&gpu.occupancy, 0, bytemuck::cast_slice(&occupancy));
+            // The visibility masks: the voxels around what changed after an incremental voxelisation that
+            // follows the one the masks were made from, else all (a mask depends on the occupancy between
+            // its voxel and its stencil's hints, all within a cell).
+            let res = gpu.occupancy_resolution;
+            let all = VisibilityRegion::covering(UVec3::ZERO, res - 1, res);
+            let follows = gpu.voxel_generation.is_some_and(|g| g + 1 == voxel_generation) && gpu.visibility_pending.is_none();
+            let change = fitting.map_or(VoxelChange::All, |(_, v)| v.changed);
+            let region = match change {
+                VoxelChange::Voxels(lo, hi) if follows => {
+                    let margin = UVec3::splat(super::voxelize::OCCUPANCY_FACTOR + 1);
+                    Some(VisibilityRegion::covering(lo.saturating_sub(margin), hi + margin, res))
+                }
+                VoxelChange::Nothing if follows => None,
+                _ => Some(all),
+            };
+            gpu.visibility_pending = region;
             gpu.voxel_generation = Some(voxel_generation);
         }
 
@@ -687,6 +786,7 @@ pub(crate) fn prepare_rh_volumes(
             blend_band: if gpu.nested { NESTED_BLEND_CELLS } else { 0.0 },
             blend_faces: nested[index],
             occupancy_resolution: gpu.occupancy_resolution.extend(s.voxel_visibility as u32),
+            near_field_range: if s.voxel_visibility { s.near_field_occlusion * cell.length() } else { 0.0 },
         };
         gpu.uniform_offsets.clear();
         gpu.uniform_offsets.push(state.uniforms.push(&uniform));
@@ -719,23 +819,35 @@ pub(crate) fn prepare_rh_volumes(
             decide: specialize(RhPass::Decide),
             blend: specialize(RhPass::Blend),
             export: specialize(RhPass::Export),
+            visibility: specialize(RhPass::Visibility),
         });
+        if let Some(region) = gpu.visibility_pending {
+            let mut data = encase::UniformBuffer::new(Vec::<u8>::new());
+            data.write(&region).expect("the region uniform encodes");
+            queue.write_buffer(&gpu.visibility_region, 0, data.as_ref());
+        }
         state.volumes.push(gpu);
     }
     state.uniforms.write_buffer(&device, &queue);
 
     state.reconstruct_pipelines.clear();
     for camera in cameras.iter().filter(|c| c.0.method == GiMethod::RadianceHints) {
-        for (order, nested) in state.volumes.iter().map(|v| (v.settings.sh_order, v.nested)).collect::<Vec<_>>() {
-            let key = RhReconstructKey {
-                sh_order: order,
-                half_resolution: camera.0.half_resolution,
-                hint_grid: camera.0.debug_view == crate::camera::GiDebugView::HintGrid,
-                nested,
-            };
+        for v in &state.volumes {
+            let key = reconstruct_key(v, &camera.0);
             let id = specialized_render.specialize(&pipeline_cache, &pipelines, key);
             state.reconstruct_pipelines.insert(key, id);
         }
+    }
+}
+
+/// The reconstruction pipeline a camera draws `volume` with.
+pub fn reconstruct_key(volume: &RhVolumeGpu, camera: &crate::camera::DiffuseGi) -> RhReconstructKey {
+    RhReconstructKey {
+        sh_order: volume.settings.sh_order,
+        half_resolution: camera.half_resolution,
+        hint_grid: camera.debug_view == crate::camera::GiDebugView::HintGrid,
+        nested: volume.nested,
+        nonlinear_irradiance: volume.settings.irradiance == super::settings::IrradianceReconstruction::NonLinear,
     }
 }
 
@@ -807,10 +919,29 @@ pub(crate) fn prepare_rh_bind_groups(
                     v.stats.as_entire_binding(),
                 )),
             ),
+            visibility_output: device.create_bind_group(
+                "diffuse_gi_rh_visibility_output_bind_group",
+                &layout(&pipelines.visibility_output_layout),
+                &BindGroupEntries::sequential((v.visibility_region.as_entire_binding(), v.visibility.as_entire_binding())),
+            ),
+            lookup: device.create_bind_group(
+                "diffuse_gi_rh_lookup_bind_group",
+                &layout(&pipelines.lookup_layout),
+                &BindGroupEntries::sequential((
+                    v.occupancy.as_entire_binding(),
+                    v.visibility.as_entire_binding(),
+                    v.packed.as_entire_binding(),
+                )),
+            ),
             blend: device.create_bind_group(
                 "diffuse_gi_rh_blend_bind_group",
                 &layout(&pipelines.blend_layout),
-                &BindGroupEntries::sequential((uniform.clone(), v.sum.as_entire_binding(), v.result.as_entire_binding())),
+                &BindGroupEntries::sequential((
+                    uniform.clone(),
+                    v.sum.as_entire_binding(),
+                    v.result.as_entire_binding(),
+                    v.packed.as_entire_binding(),
+                )),
             ),
         });
     }
@@ -843,6 +974,18 @@ mod tests {
     }
 
     use super::*;
+
+    #[test]
+    fn visibility_regions_cover_whole_words_inside_the_grid() {
+        let res = UVec3::new(64, 20, 36);
+        let all = VisibilityRegion::covering(UVec3::ZERO, res - 1, res);
+        assert_eq!((all.origin, all.size), (UVec4::ZERO, UVec4::new(16, 20, 36, 0)));
+        assert_eq!(all.words(), res.x * res.y * res.z / 4, "one word per four voxels");
+        // A box from voxel 5 to 9 along x takes the words of voxels 4..=11; a box past the grid is cut.
+        let part = VisibilityRegion::covering(UVec3::new(5, 2, 3), UVec3::new(9, 40, 3), res);
+        assert_eq!(part.origin, UVec4::new(4, 2, 3, 0));
+        assert_eq!(part.size, UVec4::new(2, 18, 1, 0));
+    }
 
     #[test]
     fn still_updates_average_and_changes_blend() {

@@ -10,8 +10,8 @@ use bevy::render::renderer::{RenderContext, ViewQuery};
 use bevy::render::texture::GpuImage;
 use bevy::render::view::{ViewUniformOffset, ViewUniforms};
 
-use super::prepare::{RhPipelines, RhReconstructKey, RhVolumesGpu};
-use crate::camera::{GiDebugView, GiMethod, GiOutput};
+use super::prepare::{RhPipelines, RhVolumesGpu};
+use crate::camera::{GiMethod, GiOutput};
 use crate::composite::{ExtractedDiffuseGi, GiViewTarget};
 use crate::rsm::RsmAtlas;
 
@@ -78,6 +78,9 @@ fn update_volumes(
     depth: Option<(&BindGroup, u32)>,
     ctx: &mut RenderContext,
 ) {
+    if depth.is_none() {
+        prepare_visibility_masks(state, pipeline_cache, ctx);
+    }
     let wants = |v: &super::prepare::RhVolumeGpu| v.settings.depth_occlusion.is_some() == depth.is_some();
     if !state.volumes.iter().any(|v| wants(v) && (v.update_this_frame || v.export.is_some())) {
         return;
@@ -205,6 +208,40 @@ fn update_volumes(
     }
 }
 
+/// Threads per dimension of a 2D dispatch: a grid of 256³ voxels has 2²² words, more than 65 535 groups.
+const VISIBILITY_GROUPS_X: u32 = 4096;
+
+/// Redoes the visibility masks of the volumes whose voxels changed (`visibility.wgsl`), before any camera
+/// reconstructs from them.
+fn prepare_visibility_masks(state: &mut RhVolumesGpu, pipeline_cache: &PipelineCache, ctx: &mut RenderContext) {
+    if !state.volumes.iter().any(|v| v.visibility_pending.is_some()) {
+        return;
+    }
+    let diagnostics = ctx.diagnostic_recorder();
+    let diagnostics = diagnostics.as_deref();
+    let mut pass = ctx.command_encoder().begin_compute_pass(&ComputePassDescriptor {
+        label: Some("diffuse_gi_rh_visibility"),
+        timestamp_writes: None,
+    });
+    let span = diagnostics.pass_span(&mut pass, "diffuse_gi/rh_visibility");
+    for v in &mut state.volumes {
+        let (Some(region), Some(groups), Some(ids)) = (v.visibility_pending, v.bind_groups.as_ref(), v.pipelines) else {
+            continue;
+        };
+        let Some(pipeline) = pipeline_cache.get_compute_pipeline(ids.visibility) else {
+            continue;
+        };
+        let workgroups = region.words().div_ceil(super::prepare::WORKGROUP_SIZE);
+        pass.set_pipeline(pipeline);
+        pass.set_bind_group(0, &groups.visibility_output, &[]);
+        pass.set_bind_group(1, &groups.sample_result, &[v.uniform_offsets[0]]);
+        pass.set_bind_group(2, &groups.occupancy, &[]);
+        pass.dispatch_workgroups(workgroups.min(VISIBILITY_GROUPS_X), workgroups.div_ceil(VISIBILITY_GROUPS_X), 1);
+        v.visibility_pending = None;
+    }
+    span.end(&mut pass);
+}
+
 /// Reconstructs the indirect light of every volume into the camera's GI target (§5, Eq. 6–7).
 pub(crate) fn reconstruct_gi(
     view: ViewQuery<(&ExtractedDiffuseGi, &ViewUniformOffset, &ViewPrepassTextures, &GiViewTarget)>,
@@ -237,12 +274,7 @@ pub(crate) fn reconstruct_gi(
         let mut order: Vec<&super::prepare::RhVolumeGpu> = state.volumes.iter().collect();
         order.sort_by(|a, b| a.nested.cmp(&b.nested).then(b.cell_diagonal.total_cmp(&a.cell_diagonal)));
         for v in order {
-            let key = RhReconstructKey {
-                sh_order: v.settings.sh_order,
-                half_resolution: gi.0.half_resolution,
-                hint_grid: gi.0.debug_view == GiDebugView::HintGrid,
-                nested: v.nested,
-            };
+            let key = super::prepare::reconstruct_key(v, &gi.0);
             let (Some(pipeline), Some(groups)) = (
                 state.reconstruct_pipelines.get(&key).and_then(|id| pipeline_cache.get_render_pipeline(*id)),
                 v.bind_groups.as_ref(),
@@ -252,7 +284,7 @@ pub(crate) fn reconstruct_gi(
             pass.set_render_pipeline(pipeline);
             pass.set_bind_group(0, &view_group, &[view_offset.offset]);
             pass.set_bind_group(1, &groups.sample_result, &[v.uniform_offsets[0]]);
-            pass.set_bind_group(2, &groups.occupancy, &[]);
+            pass.set_bind_group(2, &groups.lookup, &[]);
             pass.draw(0..3, 0..1);
         }
     }

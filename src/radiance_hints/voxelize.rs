@@ -41,6 +41,21 @@ pub struct GeometryVoxels {
     /// Per hint cell: `Σ albedo × area` (rgb) and `Σ area` (a), in cell units, before dilation; kept so that
     /// [`voxelize_update`] can redo only the cells a change touches.
     pub albedo_sums: Vec<Vec4>,
+    /// What may differ from the previous voxelisation of the same volume: what the reconstruction's
+    /// visibility masks must redo.
+    pub changed: VoxelChange,
+}
+
+/// The part of a volume's voxels a voxelisation changed.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum VoxelChange {
+    /// A full voxelisation: anything may have changed.
+    #[default]
+    All,
+    /// Only occupancy bits, and the validity of hints, inside this inclusive box of occupancy voxels.
+    Voxels(UVec3, UVec3),
+    /// Nothing.
+    Nothing,
 }
 
 /// The occupancy grid resolution for a hint grid.
@@ -67,7 +82,7 @@ pub fn voxelize(snapshot: &SceneSnapshot, world_from_local: Mat4, resolution: UV
     let words = ((occupancy_resolution.x * occupancy_resolution.y * occupancy_resolution.z) as usize).div_ceil(32);
     let mut occupancy = vec![0u32; words];
     occupancy_bits(snapshot, local_from_world, occupancy_resolution, (UVec3::ZERO, occupancy_resolution - 1), &mut occupancy);
-    GeometryVoxels { albedo_validity: albedo, occupancy, occupancy_resolution, albedo_sums: sums }
+    GeometryVoxels { albedo_validity: albedo, occupancy, occupancy_resolution, albedo_sums: sums, changed: VoxelChange::All }
 }
 
 /// `previous` brought up to date after geometry changed inside the world-space boxes `dirty`: only the
@@ -89,6 +104,7 @@ pub fn voxelize_update(
         return voxelize(snapshot, world_from_local, res);
     }
     let mut out = previous.clone();
+    out.changed = VoxelChange::Nothing;
     let mut validity_boxes = Vec::new();
     for &(lo, hi) in dirty {
         if let Some(cells) = cell_box(local_from_world, res, lo, hi, 1) {
@@ -104,6 +120,16 @@ pub fn voxelize_update(
         // Validity: only hints inside the box can have been put inside (or let out of) the moved solid.
         if let Some(cells) = cell_box(local_from_world, res, lo, hi, 0) {
             validity_boxes.push(cells);
+        }
+        // Validity changes in the hint cells the box touches, occupancy in the voxels; both in voxels.
+        if let Some(cells) = cell_box(local_from_world, res, lo, hi, 1) {
+            let scale = occupancy_res.as_vec3() / res.as_vec3();
+            let a = (cells.0.as_vec3() * scale).floor().as_uvec3();
+            let b = (((cells.1 + 1).as_vec3() * scale).ceil().as_uvec3()).min(occupancy_res) - 1;
+            out.changed = match out.changed {
+                VoxelChange::Voxels(lo, hi) => VoxelChange::Voxels(lo.min(a), hi.max(b)),
+                _ => VoxelChange::Voxels(a, b),
+            };
         }
         if let Some(voxels) = cell_box(local_from_world, occupancy_res, lo, hi, 1) {
             for z in voxels.0.z..=voxels.1.z {
@@ -471,6 +497,34 @@ mod tests {
         // Validity is redone near the change only; a far hint whose rays the moved box now shades may differ.
         let differing = updated.albedo_validity.iter().zip(&full.albedo_validity).filter(|(a, b)| a.w != b.w).count();
         assert!(differing * 50 <= full.albedo_validity.len(), "{differing} hints differ in validity");
+        // The change it reports covers every occupancy voxel and every hint's voxels that differ, and not
+        // the whole grid.
+        let VoxelChange::Voxels(lo, hi) = updated.changed else {
+            panic!("an incremental update reports a box, not {:?}", updated.changed);
+        };
+        let occ = full.occupancy_resolution;
+        let inside = |v: UVec3| v.cmpge(lo).all() && v.cmple(hi).all();
+        for z in 0..occ.z {
+            for y in 0..occ.y {
+                for x in 0..occ.x {
+                    let v = UVec3::new(x, y, z);
+                    if bit(&before.occupancy, v, occ) != bit(&updated.occupancy, v, occ) {
+                        assert!(inside(v), "voxel {v} changed outside the reported box {lo}..={hi}");
+                    }
+                }
+            }
+        }
+        for (i, (a, b)) in before.albedo_validity.iter().zip(&updated.albedo_validity).enumerate() {
+            if a.w != b.w {
+                let c = UVec3::new(i as u32 % res.x, (i as u32 / res.x) % res.y, i as u32 / (res.x * res.y));
+                assert!(inside(c * OCCUPANCY_FACTOR) && inside(c * OCCUPANCY_FACTOR + OCCUPANCY_FACTOR - 1), "hint {c}");
+            }
+        }
+        let (size, all) = ((hi - lo + 1).as_vec3(), occ.as_vec3());
+        assert!(size.x * size.y * size.z < 0.8 * all.x * all.y * all.z, "the box {lo}..={hi} is most of the grid");
+        assert_eq!(full.changed, VoxelChange::All);
+        let unchanged = voxelize_update(&scene, volume, res, &updated, &[]);
+        assert_eq!(unchanged.changed, VoxelChange::Nothing);
     }
 
     fn wall(x: f32, material: u32) -> Vec<InputTriangle> {

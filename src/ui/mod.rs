@@ -15,7 +15,7 @@ use bevy_egui::{EguiContexts, EguiPlugin, EguiPrimaryContextPass, egui};
 use crate::camera::{DiffuseGi, GiDebugView, GiMethod, GiOutput};
 use crate::vpl::VplSettings;
 use crate::light::GiLight;
-use crate::radiance_hints::{DepthOcclusion, GridSizing, RadianceHintsVolume};
+use crate::radiance_hints::{DepthOcclusion, GridSizing, IrradianceReconstruction, RadianceHintsVolume};
 use crate::sh::ShOrder;
 
 /// Adds the "Diffuse GI" window.
@@ -219,6 +219,12 @@ fn volume_ui(ui: &mut egui::Ui, label: &str, volume: &mut Mut<RadianceHintsVolum
         (false, _) => v.depth_occlusion = None,
     }
     ui.add(egui::Slider::new(&mut v.reconstruction_samples, 1..=16).text("reconstruction samples N_RH"));
+    ui.add(egui::Slider::new(&mut v.near_field_occlusion, 0.0..=2.0).text("near-field occlusion (cell diagonals, 0 = off)"));
+    ui.horizontal(|ui| {
+        ui.label("irradiance from SH:");
+        ui.radio_value(&mut v.irradiance, IrradianceReconstruction::NonLinear, "non-linear (Hazel)");
+        ui.radio_value(&mut v.irradiance, IrradianceReconstruction::Linear, "linear (Eq. 7)");
+    });
     ui.add(egui::Slider::new(&mut v.intensity, 0.0..=4.0).text("intensity"));
     let running = v.effective(transform.to_matrix());
     let r = running.resolution;
