@@ -183,29 +183,39 @@ fn absurd_settings_are_clamped_and_still_render_finite_light() {
 }
 
 #[test]
-fn half_resolution_stays_close_to_full_resolution() {
+fn half_resolution_the_default_holds_the_error_of_full_resolution() {
     let test = "rh_half_resolution";
     // Both after the refinement has converged, so that the comparison sees the resolution, not two
     // different stages of the running average (after 8 frames they differed by 0.024–0.054 run to run).
-    let full = rh_converged(StandardScene::Cornell, RadianceHintsVolume::LOW);
-    let half = render(&HeadlessOptions {
+    let full = render(&HeadlessOptions {
         method: HeadlessMethod::Gi(GiMethod::RadianceHints),
         indirect_only: true,
-        rh: RadianceHintsVolume::LOW,
-        half_resolution: true,
+        half_resolution: false,
         frames: 32,
         ..Default::default()
     })
     .image;
-    // Measured on lavapipe (low preset): block 0.024, energy 0.998 between the two.
-    let m = metrics::compare(&half, &full).expect("comparable");
-    eprintln!("{test}: block {:.4}, energy {:.4}", m.block_relative_rmse, m.energy_ratio);
+    let half = rh_converged(StandardScene::Cornell, RadianceHintsVolume::default());
+    assert!(HeadlessOptions::default().half_resolution, "the default camera reconstructs at half resolution");
+    let truth = ground_truth("cornell.exr");
+    let (m_full, m_half) = (metrics::compare(&full, &truth).expect("full"), metrics::compare(&half, &truth).expect("half"));
+    let between = metrics::compare(&half, &full).expect("comparable");
+    // Measured on lavapipe: full 0.147, half 0.147 against the truth; 0.03 between the two.
+    eprintln!(
+        "{test}: against the truth full {:.4} / half {:.4}; between them block {:.4}, energy {:.4}",
+        m_full.block_relative_rmse, m_half.block_relative_rmse, between.block_relative_rmse, between.energy_ratio
+    );
     check(
         test,
-        m.block_relative_rmse < 0.05 && (0.97..=1.03).contains(&m.energy_ratio),
+        m_half.block_relative_rmse <= m_full.block_relative_rmse + 0.01
+            && between.block_relative_rmse < 0.05
+            && (0.97..=1.03).contains(&between.energy_ratio),
         &half,
         Some(&full),
-        format!("half vs full resolution: block {:.4}, energy {:.4}", m.block_relative_rmse, m.energy_ratio),
+        format!(
+            "half resolution {:.4} against full {:.4} (truth); between them block {:.4}, energy {:.4}",
+            m_half.block_relative_rmse, m_full.block_relative_rmse, between.block_relative_rmse, between.energy_ratio
+        ),
     );
 }
 
@@ -280,12 +290,13 @@ fn the_default_volume_is_right_in_the_large_standard_scenes() {
 }
 
 /// Measured on lavapipe at the default settings: (block relative RMSE, energy, blocks > 50 % off).
-const MEASURED_SPONZA: (f64, f64, f64) = (0.272, 1.017, 0.027);
-const MEASURED_CELLAR: (f64, f64, f64) = (0.232, 0.900, 0.012);
-/// Far from the ≤ 0.30 target: 1 m cells over a 60 m field (docs/radiance_hints.md, § game scale).
-const MEASURED_FIELD: (f64, f64, f64) = (0.512, 1.160, 0.489);
-const MEASURED_POINT: (f64, f64, f64) = (0.111, 1.025, 0.004);
-const MEASURED_PANEL: (f64, f64, f64) = (0.358, 1.104, 0.135);
+const MEASURED_SPONZA: (f64, f64, f64) = (0.280, 1.015, 0.017);
+const MEASURED_CELLAR: (f64, f64, f64) = (0.249, 0.905, 0.011);
+/// Far from the ≤ 0.30 target: 1 m cells over a 60 m field, and the non-linear irradiance lights the
+/// ground from the field above it, which holds the ground's own light (docs/radiance_hints.md).
+const MEASURED_FIELD: (f64, f64, f64) = (0.562, 1.313, 0.662);
+const MEASURED_POINT: (f64, f64, f64) = (0.090, 1.030, 0.005);
+const MEASURED_PANEL: (f64, f64, f64) = (0.283, 1.075, 0.076);
 
 #[test]
 fn a_point_light_bounces_through_its_cube_rsm() {
@@ -477,8 +488,9 @@ fn cellar_ceiling_junctions_hold_no_outlier_pixels() {
 }
 
 #[test]
-#[ignore = "issue #13: at the floor, the corner of the dividing and right walls holds a speck (≈ 3.2× the \
-            truth at (182, 155)) and the lit patch at the right wall's foot reads ≈ 0.3× (238, 177)"]
+#[ignore = "issue #13: where the dividing and right walls meet near the floor, 6 pixels (181–182, 154–157) \
+            read 3.2× the truth: the truth darkens the concave corner over about a cell, below what the hints \
+            resolve (near-field occlusion, off by default because its voxel rays raised the error)"]
 fn cellar_floor_junctions_hold_no_outlier_pixels() {
     assert_no_cellar_junction_outliers("rh_cellar_floor_junctions", 120..256);
 }

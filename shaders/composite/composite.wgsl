@@ -4,15 +4,16 @@
 // Hints sums its volumes there; the VPL gather writes weight 1). The light added is `albedo × E/π × exposure`, with the albedo decoded from Bevy's
 // G-buffer (base colour stored gamma-2.2, times 1 − metallic): the indirect-only image of the metrics.
 // The reconstruction rotates its hemisphere samples per pixel (interleaved gradient noise), which turns
-// differences between hints into a fine pattern; the composite filters it away. At full resolution each
-// pixel averages its 3×3 neighbourhood, at half resolution the 4×4 GI texels around it (bilinear), both
+// differences between hints into a fine pattern; it is filtered away. At full resolution each pixel
+// averages its 3×3 neighbourhood here; a reduced-resolution target is filtered the same way at its own
+// resolution first (filter.wgsl), and each pixel interpolates the 2×2 texels around it (bilinear); all
 // weighted by how similar the neighbours' depth and normal are to its own (joint bilateral filtering).
 
 #import bevy_core_pipeline::fullscreen_vertex_shader::FullscreenVertexOutput
 #import bevy_render::view::View
 #import bevy_pbr::pbr_deferred_types::{unpack_24bit_normal, unpack_unorm4x8_, unpack_flags, DEFERRED_FLAGS_UNLIT_BIT}
 #import bevy_pbr::utils::octahedral_decode
-#import bevy_diffuse_gi::gi_frame::target_pixel
+#import bevy_diffuse_gi::gi_frame::{target_pixel, view_depth, similarity, resolve}
 
 @group(0) @binding(0) var<uniform> view: View;
 @group(0) @binding(1) var depth_texture: texture_depth_2d;
@@ -37,30 +38,19 @@ struct RsmDebug {
 const DISPLAY: u32 = #{DISPLAY}u;
 const GI_SCALE: i32 = #{GI_SCALE};
 
-fn view_depth(depth: f32) -> f32 {
-    let p = view.view_from_clip * vec4(0.0, 0.0, depth, 1.0);
-    return -p.z / p.w;
-}
-
 fn normal_at(pixel: vec2<i32>) -> vec3<f32> {
     return octahedral_decode(unpack_24bit_normal(textureLoad(gbuffer, pixel, 0).a));
-}
-
-fn resolve(t: vec4<f32>) -> vec3<f32> {
-    // One volume: a fades towards its edges and the light with it; overlapping volumes average.
-    return t.rgb / max(t.a, 1.0);
 }
 
 fn gi_at(pixel: vec2<i32>, n: vec3<f32>, depth: f32) -> vec3<f32> {
     let low_size = vec2<i32>(textureDimensions(gi_texture));
     let full_size = vec2<i32>(textureDimensions(depth_texture));
+    // Full resolution: the 3×3 neighbourhood, equal spatial weights. Reduced resolution: the target was
+    // filtered at its own resolution (filter.wgsl); the 2×2 texels around the pixel, bilinear weights.
     let pos = (vec2<f32>(pixel) + 0.5) / f32(GI_SCALE) - 0.5;
-    // Full resolution: the 3×3 neighbourhood, equal spatial weights. Half resolution: the 4×4 texels
-    // around the pixel, bilinear tent weights.
-    let base = select(vec2<i32>(floor(pos)) - 1, pixel - 1, GI_SCALE == 1);
-    let f = pos - floor(pos);
-    let taps = select(4, 3, GI_SCALE == 1);
-    let z = view_depth(depth);
+    let base = select(vec2<i32>(floor(pos)), pixel - 1, GI_SCALE == 1);
+    let taps = select(2, 3, GI_SCALE == 1);
+    let z = view_depth(view.view_from_clip, depth);
     var sum = vec3(0.0);
     var total = 0.0;
     var nearest = vec3(0.0);
@@ -76,16 +66,14 @@ fn gi_at(pixel: vec2<i32>, n: vec3<f32>, depth: f32) -> vec3<f32> {
         if d <= 0.0 || texel.a <= 0.0 {
             continue;
         }
-        // Tent weights over the 4×4 texels (distance from the pixel in low-resolution texels), or flat.
+        let zd = view_depth(view.view_from_clip, d);
         let dist = abs(vec2<f32>(base + o) - pos);
-        let tent = max(vec2(0.0), 1.0 - dist * 0.5);
-        let bilinear = select(tent.x * tent.y, 1.0, GI_SCALE == 1);
-        let dz = abs(view_depth(d) - z) / max(z, 1e-4);
-        let similarity = exp(-dz * 20.0) * pow(max(dot(normal_at(source), n), 0.0), 8.0);
+        let bilinear = select(max(1.0 - dist.x, 0.0) * max(1.0 - dist.y, 0.0), 1.0, GI_SCALE == 1);
         let value = resolve(texel);
-        let w = (bilinear + 1e-3) * similarity;
+        let w = (bilinear + 1e-3) * similarity(zd, z, normal_at(source), n);
         sum += value * w;
         total += w;
+        let dz = abs(zd - z);
         if dz < nearest_distance {
             nearest_distance = dz;
             nearest = value;

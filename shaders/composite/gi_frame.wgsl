@@ -14,3 +14,26 @@ fn world_at(world_from_clip: mat4x4<f32>, pixel: vec2<i32>, size: vec2<i32>, dep
     let world = world_from_clip * vec4(uv.x * 2.0 - 1.0, 1.0 - uv.y * 2.0, depth, 1.0);
     return world.xyz / world.w;
 }
+
+// View-space distance of a (reverse-Z) depth value.
+fn view_depth(view_from_clip: mat4x4<f32>, depth: f32) -> f32 {
+    let p = view_from_clip * vec4(0.0, 0.0, depth, 1.0);
+    return -p.z / p.w;
+}
+
+// How much a neighbour at view depth `z_other` with normal `n_other` stands for a pixel at `z` with normal
+// `n` when the frame filters or upsamples the target: 1 on the same smooth surface, falling off with the
+// relative depth difference (e^(−20 Δz/z)) and the normals' angle (cos⁸).
+fn similarity(z_other: f32, z: f32, n_other: vec3<f32>, n: vec3<f32>) -> f32 {
+    let dz = abs(z_other - z) / max(z, 1e-4);
+    let c = max(dot(n_other, n), 0.0);
+    let c2 = c * c;
+    let c4 = c2 * c2;
+    return exp(-dz * 20.0) * c4 * c4;
+}
+
+// The light a target texel holds: Σ w·E/π over Σ w, where weights below 1 (one volume fading out at its
+// box) fade the light with them.
+fn resolve(t: vec4<f32>) -> vec3<f32> {
+    return t.rgb / max(t.a, 1.0);
+}

@@ -55,6 +55,9 @@ pub struct GiViewTarget {
     pub texture: CachedTexture,
     /// Pixels per texel along each axis (1 or 2).
     pub scale: u32,
+    /// At reduced resolution: the target after the frame's bilateral filter at its own resolution
+    /// (`filter.wgsl`), which the composite upsamples, and the filter's pipeline.
+    pub filtered: Option<(CachedTexture, CachedRenderPipelineId)>,
 }
 
 /// Where a method's per-view passes go in `Core3d`.
@@ -100,14 +103,15 @@ pub struct CompositePipelines {
     view_layout: BindGroupLayoutDescriptor,
     rsm_layout: BindGroupLayoutDescriptor,
     shader: Handle<Shader>,
+    filter_shader: Handle<Shader>,
     fullscreen: VertexState,
     rsm_debug: UniformBuffer<RsmDebugUniform>,
 }
 
-/// The composite shader and the `gi_frame` import library the methods' passes use, kept alive by this
-/// resource.
+/// The composite shader, the `gi_frame` import library the methods' passes use and the reduced-resolution
+/// filter, kept alive by this resource.
 #[derive(Resource, Clone)]
-pub struct CompositeShader(pub Handle<Shader>, pub Handle<Shader>);
+pub struct CompositeShader(pub Handle<Shader>, pub Handle<Shader>, pub Handle<Shader>);
 
 impl FromWorld for CompositePipelines {
     fn from_world(world: &mut World) -> Self {
@@ -138,6 +142,7 @@ impl FromWorld for CompositePipelines {
                 ),
             ),
             shader: world.resource::<CompositeShader>().0.clone(),
+            filter_shader: world.resource::<CompositeShader>().2.clone(),
             fullscreen: world.resource::<FullscreenShader>().to_vertex_state(),
             rsm_debug: UniformBuffer::default(),
         }
@@ -186,6 +191,37 @@ impl SpecializedRenderPipeline for CompositePipelines {
     }
 }
 
+/// Key of the reduced-resolution filter: pixels per target texel.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct FilterKey(pub u32);
+
+/// The filter of a reduced-resolution target ([`GiViewTarget::filtered`]), with the composite's layout.
+#[derive(Resource)]
+pub struct FilterPipelines {
+    view_layout: BindGroupLayoutDescriptor,
+    shader: Handle<Shader>,
+    fullscreen: VertexState,
+}
+
+impl SpecializedRenderPipeline for FilterPipelines {
+    type Key = FilterKey;
+
+    fn specialize(&self, key: Self::Key) -> RenderPipelineDescriptor {
+        RenderPipelineDescriptor {
+            label: Some("diffuse_gi_filter_pipeline".into()),
+            layout: vec![self.view_layout.clone()],
+            vertex: self.fullscreen.clone(),
+            fragment: Some(FragmentState {
+                shader: self.shader.clone(),
+                shader_defs: vec![ShaderDefVal::Int("GI_SCALE".into(), key.0 as i32)],
+                entry_point: Some("filter_target".into()),
+                targets: vec![Some(ColorTargetState { format: GI_TARGET_FORMAT, blend: None, write_mask: ColorWrites::ALL })],
+            }),
+            ..default()
+        }
+    }
+}
+
 /// The composite pipeline of a camera this frame.
 #[derive(Component)]
 pub struct CompositePipelineId(pub CachedRenderPipelineId);
@@ -198,6 +234,8 @@ pub(crate) fn prepare_composite(
     mut texture_cache: ResMut<TextureCache>,
     mut pipelines: ResMut<CompositePipelines>,
     mut specialized: ResMut<SpecializedRenderPipelines<CompositePipelines>>,
+    filters: Res<FilterPipelines>,
+    mut specialized_filters: ResMut<SpecializedRenderPipelines<FilterPipelines>>,
     pipeline_cache: Res<PipelineCache>,
     atlas: Res<RsmAtlas>,
     device: Res<RenderDevice>,
@@ -208,30 +246,36 @@ pub(crate) fn prepare_composite(
             continue;
         };
         let scale = gi.scale();
-        let texture = texture_cache.get(
-            &device,
-            TextureDescriptor {
-                label: Some("diffuse_gi_target"),
-                size: Extent3d {
-                    width: size.x.div_ceil(scale).max(1),
-                    height: size.y.div_ceil(scale).max(1),
-                    depth_or_array_layers: 1,
+        let mut make_target = |label| {
+            texture_cache.get(
+                &device,
+                TextureDescriptor {
+                    label: Some(label),
+                    size: Extent3d {
+                        width: size.x.div_ceil(scale).max(1),
+                        height: size.y.div_ceil(scale).max(1),
+                        depth_or_array_layers: 1,
+                    },
+                    mip_level_count: 1,
+                    sample_count: 1,
+                    dimension: TextureDimension::D2,
+                    format: GI_TARGET_FORMAT,
+                    usage: TextureUsages::RENDER_ATTACHMENT | TextureUsages::TEXTURE_BINDING,
+                    view_formats: &[],
                 },
-                mip_level_count: 1,
-                sample_count: 1,
-                dimension: TextureDimension::D2,
-                format: GI_TARGET_FORMAT,
-                usage: TextureUsages::RENDER_ATTACHMENT | TextureUsages::TEXTURE_BINDING,
-                view_formats: &[],
-            },
-        );
+            )
+        };
+        let texture = make_target("diffuse_gi_target");
+        let filtered = (scale > 1).then(|| {
+            (make_target("diffuse_gi_filtered_target"), specialized_filters.specialize(&pipeline_cache, &filters, FilterKey(scale)))
+        });
         let key = CompositeKey {
             format: target.main_texture_format(),
             display: gi.0.debug_view.display(),
             half_resolution: gi.0.half_resolution,
         };
         let id = specialized.specialize(&pipeline_cache, &pipelines, key);
-        commands.entity(entity).insert((GiViewTarget { texture, scale }, CompositePipelineId(id)));
+        commands.entity(entity).insert((GiViewTarget { texture, scale, filtered }, CompositePipelineId(id)));
     }
     let first = atlas.slots.first();
     pipelines.rsm_debug.set(RsmDebugUniform {
@@ -274,10 +318,15 @@ pub(crate) fn composite_gi(
         return;
     };
     let device = ctx.render_device().clone();
+    // The filtered target at reduced resolution; the raw one for the texel-by-texel view.
+    let source = match &gi_target.filtered {
+        Some((filtered, _)) if debug_view.display() != TargetDisplay::RawIrradiance => &filtered.default_view,
+        _ => &gi_target.texture.default_view,
+    };
     let view_group = device.create_bind_group(
         "diffuse_gi_composite_view_bind_group",
         &pipeline_cache.get_bind_group_layout(&pipelines.view_layout),
-        &BindGroupEntries::sequential((uniforms, depth, gbuffer, &gi_target.texture.default_view)),
+        &BindGroupEntries::sequential((uniforms, depth, gbuffer, source)),
     );
     let rsm_group = match debug_view.display() {
         TargetDisplay::Rsm(_) => {
@@ -303,6 +352,59 @@ pub(crate) fn composite_gi(
         if let Some(group) = &rsm_group {
             pass.set_bind_group(1, group, &[]);
         }
+        pass.draw(0..3, 0..1);
+    }
+    span.end(ctx.command_encoder());
+}
+
+/// Filters a reduced-resolution target at its own resolution into [`GiViewTarget::filtered`] (after the
+/// method has written and refined it, before the composite upsamples it).
+pub(crate) fn filter_gi_target(
+    view: ViewQuery<(&ExtractedDiffuseGi, &ViewUniformOffset, &ViewPrepassTextures, &GiViewTarget)>,
+    pipelines: Res<FilterPipelines>,
+    pipeline_cache: Res<PipelineCache>,
+    view_uniforms: Res<ViewUniforms>,
+    mut ctx: RenderContext,
+) {
+    let (gi, view_offset, prepass, gi_target) = view.into_inner();
+    if gi.0.output == GiOutput::IrradianceVolume && gi.0.debug_view == GiDebugView::None {
+        return;
+    }
+    let Some((filtered, pipeline_id)) = &gi_target.filtered else {
+        return;
+    };
+    let (Some(pipeline), Some(uniforms), Some(depth), Some(gbuffer)) = (
+        pipeline_cache.get_render_pipeline(*pipeline_id),
+        view_uniforms.uniforms.binding(),
+        prepass.depth_view(),
+        prepass.deferred_view(),
+    ) else {
+        return;
+    };
+    let group = ctx.render_device().create_bind_group(
+        "diffuse_gi_filter_bind_group",
+        &pipeline_cache.get_bind_group_layout(&pipelines.view_layout),
+        &BindGroupEntries::sequential((uniforms, depth, gbuffer, &gi_target.texture.default_view)),
+    );
+    let diagnostics = ctx.diagnostic_recorder();
+    let diagnostics = diagnostics.as_deref();
+    let span = diagnostics.time_span(ctx.command_encoder(), "diffuse_gi/filter");
+    {
+        let mut pass = ctx.begin_tracked_render_pass(RenderPassDescriptor {
+            label: Some("diffuse_gi_filter"),
+            color_attachments: &[Some(RenderPassColorAttachment {
+                view: &filtered.default_view,
+                depth_slice: None,
+                resolve_target: None,
+                ops: Operations { load: LoadOp::Clear(default()), store: StoreOp::Store },
+            })],
+            depth_stencil_attachment: None,
+            timestamp_writes: None,
+            occlusion_query_set: None,
+            multiview_mask: None,
+        });
+        pass.set_render_pipeline(pipeline);
+        pass.set_bind_group(0, &group, &[view_offset.offset]);
         pass.draw(0..3, 0..1);
     }
     span.end(ctx.command_encoder());
@@ -389,12 +491,14 @@ impl Plugin for CompositePlugin {
             include_str!("../../shaders/composite/composite.wgsl"),
         );
         let library = crate::add_shader(app, "composite/gi_frame.wgsl", include_str!("../../shaders/composite/gi_frame.wgsl"));
+        let filter = crate::add_shader(app, "composite/filter.wgsl", include_str!("../../shaders/composite/filter.wgsl"));
         let Some(render_app) = app.get_sub_app_mut(RenderApp) else {
             return;
         };
         render_app
-            .insert_resource(CompositeShader(shader, library))
+            .insert_resource(CompositeShader(shader, library, filter))
             .init_resource::<SpecializedRenderPipelines<CompositePipelines>>()
+            .init_resource::<SpecializedRenderPipelines<FilterPipelines>>()
             .add_systems(RenderStartup, init_composite_pipelines)
             .add_systems(ExtractSchedule, extract_cameras)
             .add_systems(Render, prepare_composite.in_set(RenderSystems::PrepareResources))
@@ -412,6 +516,10 @@ impl Plugin for CompositePlugin {
                 Core3d,
                 (
                     clear_gi_target.in_set(GiViewSystems::Produce),
+                    filter_gi_target
+                        .after(GiViewSystems::Refine)
+                        .before(composite_gi)
+                        .in_set(Core3dSystems::MainPass),
                     composite_gi
                         .after(GiViewSystems::Refine)
                         .before(main_transparent_pass_3d)
@@ -426,5 +534,11 @@ use bevy::render::{ExtractSchedule, Render, RenderApp, RenderStartup, RenderSyst
 
 fn init_composite_pipelines(world: &mut World) {
     let pipelines = CompositePipelines::from_world(world);
+    let filters = FilterPipelines {
+        view_layout: pipelines.view_layout.clone(),
+        shader: pipelines.filter_shader.clone(),
+        fullscreen: world.resource::<FullscreenShader>().to_vertex_state(),
+    };
     world.insert_resource(pipelines);
+    world.insert_resource(filters);
 }
