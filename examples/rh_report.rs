@@ -31,8 +31,8 @@ use bevy_diffuse_gi::radiance_hints::{DepthOcclusion, RadianceHintsVolume, Secon
 use bevy_diffuse_gi::scenes::StandardScene;
 use bevy_diffuse_gi::sh::ShOrder;
 
-const SECTIONS: &[&str] = &["presets", "scale", "bounces", "ablation", "cellar", "tradeoff", "timing", "images"];
-const USAGE: &str = "usage: rh_report [--section presets|scale|bounces|ablation|cellar|tradeoff|timing|images]... \
+const SECTIONS: &[&str] = &["presets", "scale", "reconstruction", "bounces", "ablation", "cellar", "tradeoff", "timing", "images"];
+const USAGE: &str = "usage: rh_report [--section presets|scale|reconstruction|bounces|ablation|cellar|tradeoff|timing|images]... \
                      [--rounds N] [--docs FILE.md]";
 
 /// Static frames rendered before the image is kept: enough for the volume to finish refining, so the last
@@ -67,6 +67,7 @@ fn run() -> Result<(), String> {
         let table = match section.as_str() {
             "presets" => report.presets()?,
             "scale" => report.scale()?,
+            "reconstruction" => report.reconstruction(args.rounds)?,
             "bounces" => report.bounces()?,
             "ablation" => report.ablation()?,
             "cellar" => report.cellar()?,
@@ -275,6 +276,82 @@ impl Report {
         Ok(out)
     }
 
+    /// The per-pixel reconstruction: its error with the linear and the non-linear irradiance at full and
+    /// half resolution, and with the near-field occlusion, on six scenes (256²), and what a still frame
+    /// costs at 512² (rounds alternating).
+    fn reconstruction(&mut self, rounds: usize) -> Result<String, String> {
+        use bevy_diffuse_gi::radiance_hints::IrradianceReconstruction::{Linear, NonLinear};
+        // (name, irradiance, half resolution, near-field occlusion in cell diagonals)
+        let variants = [
+            ("linear (Eq. 7), full resolution", Linear, false, 0.0),
+            ("non-linear, full resolution", NonLinear, false, 0.0),
+            ("linear, half resolution", Linear, true, 0.0),
+            ("**default**: non-linear, half resolution", NonLinear, true, 0.0),
+            ("default + near-field occlusion 0.5", NonLinear, true, 0.5),
+        ];
+        let scenes = [
+            (StandardScene::Cornell, "cornell"),
+            (StandardScene::Cellar, "cellar"),
+            (StandardScene::SponzaLike, "sponza_like"),
+            (StandardScene::OpenField, "open_field"),
+            (StandardScene::Dynamic, "dynamic"),
+            (StandardScene::EmissivePanel, "emissive_panel"),
+        ];
+        let options = |scene: StandardScene, irradiance, half: bool, near_field_occlusion: f32| HeadlessOptions {
+            half_resolution: half,
+            ..rh_options(scene, RadianceHintsVolume { irradiance, near_field_occlusion, ..RadianceHintsVolume::MEDIUM })
+        };
+        let mut out = String::from("| reconstruction | ");
+        out += &scenes.iter().map(|(_, n)| format!("`{n}`: block / energy / > 50 % off")).collect::<Vec<_>>().join(" | ");
+        out += &format!(" |\n|---|{}\n", "---|".repeat(scenes.len()));
+        for (name, irradiance, half, near) in variants {
+            let mut cells = Vec::new();
+            for (scene, truth) in &scenes {
+                let measured = self.render(&options(scene.clone(), irradiance, half, near))?;
+                let m = self.compare(measured.image(), truth)?;
+                cells.push(format!("{:.3} / {:.3} / {:.3}", m.block_relative_rmse, m.energy_ratio, m.blocks_over_half_off));
+            }
+            out += &format!("| {name} | {} |\n", cells.join(" | "));
+        }
+
+        // Cost of a still frame at 512² on cornell, the configurations alternating in each round.
+        let size = UVec2::splat(512);
+        let mut configs = vec![("frame without GI", HeadlessOptions { frames: STILL_FRAMES, size, ..Default::default() })];
+        for (name, irradiance, half, near) in variants {
+            configs.push((name, HeadlessOptions { indirect_only: false, size, ..options(StandardScene::Cornell, irradiance, half, near) }));
+        }
+        let mut frames: BTreeMap<&str, Vec<f64>> = BTreeMap::new();
+        let mut passes: BTreeMap<(&str, &str), Vec<f64>> = BTreeMap::new();
+        for _ in 0..rounds {
+            for (name, options) in &configs {
+                let measured = self.render(options)?;
+                frames.entry(name).or_default().push(measured.frame_ms());
+                for pass in ["rh_reconstruct", "filter", "composite"] {
+                    if let Some(ms) = measured.gpu_ms(&format!("diffuse_gi/{pass}")) {
+                        passes.entry((name, pass)).or_default().push(ms);
+                    }
+                }
+            }
+        }
+        let none = common::median(&frames["frame without GI"]);
+        out += "\nA still frame of `cornell` at 512² (volume reused), medians of alternating runs; the passes are GPU \
+                timestamps (reliable on lavapipe for these render passes):\n\n\
+                | configuration | frame (ms) | × frame without GI | `rh_reconstruct` (ms) | `filter` (ms) | `composite` (ms) |\n\
+                |---|---|---|---|---|---|\n";
+        for (name, _) in &configs {
+            let frame = common::median(&frames[name]);
+            let pass = |p: &str| passes.get(&(*name, p)).map_or("–".to_string(), |v| format!("{:.1}", common::median(v)));
+            out += &format!(
+                "| {name} | {frame:.0} | {:.2} | {} | {} | {} |\n",
+                frame / none,
+                pass("rh_reconstruct"),
+                pass("filter"),
+                pass("composite")
+            );
+        }
+        Ok(out)
+    }
+
     /// Extra bounces 0–6 with SH order 2 and 3 (medium otherwise), against the all-bounce truth and, for
     /// 0 and 1 extra bounces, the truths with the same number of bounces.
     fn bounces(&mut self) -> Result<String, String> {
@@ -305,7 +382,7 @@ impl Report {
     fn ablation(&mut self) -> Result<String, String> {
         let medium = RadianceHintsVolume::MEDIUM;
         let variants: Vec<(&str, HeadlessOptions)> = vec![
-            ("medium preset (default)", cornell(medium.clone())),
+            ("medium preset (default: non-linear irradiance, half resolution)", cornell(medium.clone())),
             ("white secondary reflectance (no §6 albedo volume, Eq. 10 as printed)", cornell(RadianceHintsVolume { albedo_volume: false, ..medium.clone() })),
             (
                 "paper's secondary transport (Eq. 8–11), r_max automatic",
@@ -328,7 +405,11 @@ impl Report {
             ("no refinement (temporal blend only)", cornell(RadianceHintsVolume { refinement_updates: 0, ..medium.clone() })),
             ("1 reconstruction sample (normal only)", cornell(RadianceHintsVolume { reconstruction_samples: 1, ..medium.clone() })),
             ("8 reconstruction samples", cornell(RadianceHintsVolume { reconstruction_samples: 8, ..medium.clone() })),
-            ("half-resolution reconstruction", HeadlessOptions { half_resolution: true, ..cornell(medium.clone()) }),
+            ("full-resolution reconstruction", HeadlessOptions { half_resolution: false, ..cornell(medium.clone()) }),
+            (
+                "linear irradiance (Eq. 7 as printed)",
+                cornell(RadianceHintsVolume { irradiance: bevy_diffuse_gi::radiance_hints::IrradianceReconstruction::Linear, ..medium.clone() }),
+            ),
         ];
         let mut out = String::from("| variant | block rel. RMSE | pixel rel. RMSE | energy |\n|---|---|---|---|\n");
         for (name, options) in variants {
@@ -442,7 +523,7 @@ impl Report {
         let medium = RadianceHintsVolume::MEDIUM;
         let configs: Vec<(&str, HeadlessOptions)> = vec![
             ("none", HeadlessOptions { frames: STILL_FRAMES, ..Default::default() }),
-            ("still", HeadlessOptions { indirect_only: false, ..cornell(medium.clone()) }),
+            ("still", HeadlessOptions { indirect_only: false, half_resolution: false, ..cornell(medium.clone()) }),
             ("still_half", HeadlessOptions { indirect_only: false, half_resolution: true, ..cornell(medium.clone()) }),
             (
                 "moving",
@@ -505,7 +586,7 @@ impl Report {
             ("reconstruction + composite, half resolution", Box::new(|c| c["still_half"] - c["none"])),
             ("RSM, 1-sample injection, blend, decide (an update with N_s = 1, no extra bounce)", Box::new(|c| c["moving_b0_ns1"] - c["still"])),
             ("injection, 64 RSM samples per hint (`rh_inject`)", Box::new(|c| c["moving_b0"] - c["moving_b0_ns1"])),
-            ("4 extra bounces (`rh_bounce`)", Box::new(|c| c["moving"] - c["moving_b0"])),
+            ("extra bounces while moving (amortised, `rh_bounce`)", Box::new(|c| c["moving"] - c["moving_b0"])),
         ];
         for (name, f) in rows {
             // A difference of frame times below zero is smaller than the run-to-run noise.
@@ -530,7 +611,7 @@ impl Report {
             .collect();
         let order3 = RadianceHintsVolume { sh_order: ShOrder::Three, ..RadianceHintsVolume::MEDIUM };
         out += &format!(
-            "\nVolume memory (SH buffers, distances, albedo, occupancy bits): {}; medium with SH order 3 {}. \
+            "\nVolume memory (SH buffers, distances, albedo, packed irradiance, occupancy bits, visibility masks): {}; medium with SH order 3 {}. \
              The RSM atlas adds 36 B per texel and face (position, normal, flux, depth): 2.25 MiB for a spot \
              light at the default 256², 13.5 MiB for a point light's cube.\n",
             memory.join(", "),

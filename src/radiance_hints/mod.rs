@@ -79,6 +79,9 @@
 //!   scenes.
 //! * **Refinement**: a still scene keeps averaging updates instead of stopping once the blend settles,
 //!   which removes the sampling noise of the injection without more samples per frame.
+//! * **Half resolution** by default, with a joint bilateral filter at that resolution before the
+//!   upsampling: the error against the truth is that of full resolution within 0.01 (`cornell` 0.147
+//!   both; `docs/radiance_hints.md`, § reconstruction) for about a quarter of the per-pixel work.
 //!
 //! # Data layout
 //! Per volume, storage buffers of `hints × 3 × SH coefficients` floats (cell-major, coefficient-major RGB):
@@ -107,23 +110,34 @@
 //! stops, full updates and the refinement take over (`docs/dynamic.md` measures lag and error). A moved
 //! mesh re-voxelises only the cells its old and new bounds touch ([`voxelize::voxelize_update`]).
 //!
-//! * **Game scale** (`docs/radiance_hints.md`, § game scale; lavapipe, 256², default settings, block
-//!   relative RMSE / energy): `cornell` 0.18 / 0.98, `cellar` 0.23 / 0.90, `sponza_like` 0.27 / 1.02,
-//!   the point-lit `dynamic` 0.11 / 1.03, `emissive_panel` 0.36 / 1.10, `open_field` 0.51 / 1.16. A still
-//!   frame costs 5.2× the frame without GI at 512² on lavapipe (2.4× at half resolution), the per-pixel
-//!   reconstruction almost all of it.
+//! * **Game scale** (`docs/radiance_hints.md`, § game scale and § reconstruction; lavapipe, 256², default
+//!   settings at half resolution, block relative RMSE / energy): `cornell` 0.147 / 0.98, `cellar`
+//!   0.249 / 0.90, `sponza_like` 0.280 / 1.01, the point-lit `dynamic` 0.090 / 1.03, `emissive_panel`
+//!   0.283 / 1.07, `open_field` 0.56 / 1.31.
+//! * **Per pixel** (`docs/radiance_hints.md`, § reconstruction): a still `cornell` frame at 512² on
+//!   lavapipe costs 1.46× the frame without GI with the default half-resolution reconstruction
+//!   (`rh_reconstruct` 22 ms, `filter` 4 ms, composite 7 ms) and 2.44× at full resolution (80 ms);
+//!   before the visibility masks and packed irradiance it was 4.8–5.7×. The reconstruction reads one mask
+//!   word and eight 16-byte hints per hemisphere sample.
+//! * **Memory**: see [`RadianceHintsVolume`] (16³ hints: 1.2 MiB).
 //!
 //! # Known issues
 //! * Cells must be smaller than the rooms they light and under about twice the thickness of the walls
 //!   that must stop light. The adaptive default caps them at 0.35 m, but a volume over more than about
-//!   30 m runs out of hints: `open_field` (60 m, 1 m cells) is 0.51 off, its 30 cm free-standing wall
+//!   30 m runs out of hints: `open_field` (60 m, 1 m cells) is 0.56 off, its 30 cm free-standing wall
 //!   within one cell. Give such worlds several volumes or a cascade whose finest level covers what the
-//!   camera looks at.
-//! * The still frame is not yet cheap: the reconstruction marches the voxels for each of its 4 × 8 hint
-//!   lookups (5.2× the frame without GI at 512²; half resolution 2.4×).
+//!   camera looks at (on `open_field` the default cascade is not yet better: 0.95).
+//! * The non-linear irradiance assumes light from every side besides the dominant direction: over a
+//!   sunlit open ground, where the field holds only the ground's own upward light, it gives a surface
+//!   facing up a third of the field's mean irradiance (the linear form gives none): `open_field`
+//!   0.48 → 0.56. Closed rooms gain from it ([`IrradianceReconstruction::Linear`] is the other choice).
 //! * A cascade level that moves is recomputed, not scrolled; 20 cm door jambs (thinner than a cell) in
-//!   `cellar` read too little light; near-field occlusion below the cell size (boxes on floors) is not
-//!   modelled.
+//!   `cellar` read too little light.
+//! * Near-field occlusion below the cell size (boxes on floors) is not modelled by default: the voxel
+//!   rays of [`near_field_occlusion`](RadianceHintsVolume::near_field_occlusion) raised the error where
+//!   measured on five of six scenes (`cornell` 0.147 → 0.245), the voxels being too coarse for contact
+//!   shadows. So the concave corner where `cellar`'s dividing and right walls meet the floor reads about
+//!   3× the truth over a few pixels.
 //! * Emitters next to strongly lit faces ring in SH order 2: a face at right angles to a bright panel
 //!   gets about a quarter of the light a face turned to it does.
 //! * A pixel within a voxel of a perpendicular surface (a wall meeting the ceiling) reads the field at one
