@@ -62,7 +62,7 @@
 //! # Measured (lavapipe, 256², `docs/vpl_ssbc.md`)
 //! | scene | medium: block RMSE / energy | high | still frame, medium |
 //! |---|---|---|---|
-//! | `cornell` | 0.184 / 0.925 | 0.148 / 0.976 | 9.0 × the frame without GI (3.5 × at half resolution) |
+//! | `cornell` | 0.184 / 0.925 | 0.148 / 0.976 | 9.0 × the frame without GI (3.5 × at half resolution, the default) |
 //! | `cellar` | 0.427 / 0.988 | 0.383 / 1.038 | |
 //! | `sponza_like` | 0.289 / 0.915 | 0.237 / 0.911 | |
 //!
