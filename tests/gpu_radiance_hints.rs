@@ -165,6 +165,7 @@ fn absurd_settings_are_clamped_and_still_render_finite_light() {
         r_max: f32::NAN,
         depth_occlusion: Some(DepthOcclusion { samples: 0, strength: f32::NAN }),
         reconstruction_samples: 0,
+        near_field_occlusion: f32::INFINITY,
         sizing: GridSizing::Adaptive { hints: 0, max_cell: f32::NAN, max_hints: u32::MAX },
         ..RadianceHintsVolume::LOW
     };

@@ -498,6 +498,7 @@ mod tests {
                 samples: 0,
                 strength: f32::NAN,
             }),
+            near_field_occlusion: 7.0,
             ..default()
         };
         let (s, changed) = bad.sanitized();
@@ -511,7 +512,9 @@ mod tests {
         assert_eq!(s.temporal_blend, 0.05);
         assert_eq!(s.intensity, 100.0);
         assert_eq!(s.depth_occlusion, Some(DepthOcclusion { samples: 1, strength: 0.5 }));
-        for name in ["resolution", "rsm_samples", "rsm_coverage", "jitter", "extra_bounces", "r_max", "intensity"] {
+        assert_eq!(s.near_field_occlusion, 2.0);
+        assert_eq!(RadianceHintsVolume { near_field_occlusion: f32::NAN, ..default() }.sanitized().0.near_field_occlusion, 0.0);
+        for name in ["resolution", "rsm_samples", "rsm_coverage", "jitter", "extra_bounces", "r_max", "intensity", "near_field_occlusion"] {
             assert!(changed.contains(&name), "{name} missing from {changed:?}");
         }
         // Clamping is idempotent.
