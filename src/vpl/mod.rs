@@ -62,9 +62,9 @@
 //! # Measured (lavapipe, 256², `docs/vpl_ssbc.md`)
 //! | scene | medium: block RMSE / energy | high | still frame, medium |
 //! |---|---|---|---|
-//! | `cornell` | 0.184 / 0.925 | 0.148 / 0.976 | 9.0 × the frame without GI (3.5 × at half resolution, the default) |
-//! | `cellar` | 0.427 / 0.988 | 0.383 / 1.038 | |
-//! | `sponza_like` | 0.289 / 0.915 | 0.237 / 0.911 | |
+//! | `cornell` | 0.184 / 0.926 | 0.148 / 0.978 | 9.0 × the frame without GI (3.5 × at half resolution, the default) |
+//! | `cellar` | 0.416 / 0.986 | 0.369 / 1.042 | |
+//! | `sponza_like` | 0.295 / 0.920 | 0.257 / 0.918 | |
 //!
 //! Per pass at 256² (differences of frame times): the gather about 0.3 ms per VPL, each SSBC step about
 //! 90 ms, the shadow maps only when the VPLs change. No GPU was available: these are CPU-rasteriser times.
