@@ -48,8 +48,7 @@ fn basis(n: vec3<f32>) -> mat3x3<f32> {
 // replaces the eight visibility marches of `rh_sampling::trilinear`.
 fn hint_lookup(local: vec3<f32>) -> Trilinear {
     let v = occupancy_voxel(local);
-    let res = volume.occupancy_resolution.xyz;
-    let index = v.x + res.x * (v.y + res.y * v.z);
+    let index = cell_index(v, volume.occupancy_resolution.xyz);
     let mask = (visibility[index >> 2u] >> (8u * (index & 3u))) & 0xffu;
     return trilinear_masked(local, mask, v);
 }

@@ -38,27 +38,39 @@ fn trilinear_from(world: vec3<f32>, skip: f32) -> Trilinear {
     let local = world_to_local(volume, world);
     let g = clamp((local + 0.5) * vec3<f32>(res) - 0.5, vec3(0.0), vec3<f32>(res - 1u));
     let base = min(vec3<u32>(floor(g)), res - 1u);
-    let f = g - vec3<f32>(base);
-    var t: Trilinear;
-    for (var i = 0u; i < 8u; i++) {
-        let o = vec3<u32>(i & 1u, (i >> 1u) & 1u, (i >> 2u) & 1u);
-        let c = min(base + o, res - 1u);
-        t.cells[i] = cell_index(c, res);
-        let w = select(1.0 - f, f, vec3<bool>(o == vec3(1u)));
-        t.weights[i] = w.x * w.y * w.z;
-    }
+    let t = stencil(base, g - vec3<f32>(base));
     var usable: array<f32, 8>;
     let from_voxel = local_to_occupancy(volume, local);
     for (var i = 0u; i < 8u; i++) {
         usable[i] = albedo[t.cells[i]].a;
         if volume.occupancy_resolution.w != 0u && usable[i] > 0.0 && t.weights[i] > 0.0 {
             let o = vec3<u32>(i & 1u, (i >> 1u) & 1u, (i >> 2u) & 1u);
-            let hint = (vec3<f32>(min(base + o, res - 1u)) + 0.5) / vec3<f32>(res) - 0.5;
-            if first_hit_from(from_voxel, local_to_occupancy(volume, hint), volume.occupancy_resolution.xyz, skip) >= 0.0 {
+            let hint = stencil_hint_occupancy(min(base + o, res - 1u));
+            if first_hit_from(from_voxel, hint, volume.occupancy_resolution.xyz, skip) >= 0.0 {
                 usable[i] = 0.0;
             }
         }
     }
+    return keep_usable(t, usable);
+}
+
+// The eight hints from `base` (clamped to the grid) with their trilinear weights at fraction `f`.
+fn stencil(base: vec3<u32>, f: vec3<f32>) -> Trilinear {
+    let res = volume.resolution.xyz;
+    var t: Trilinear;
+    for (var i = 0u; i < 8u; i++) {
+        let o = vec3<u32>(i & 1u, (i >> 1u) & 1u, (i >> 2u) & 1u);
+        t.cells[i] = cell_index(min(base + o, res - 1u), res);
+        let w = select(1.0 - f, f, vec3<bool>(o == vec3(1u)));
+        t.weights[i] = w.x * w.y * w.z;
+    }
+    return t;
+}
+
+// `t` with each weight scaled by its hint's usability and renormalised; `found` is false when (almost)
+// nothing is left.
+fn keep_usable(s: Trilinear, usable: array<f32, 8>) -> Trilinear {
+    var t = s;
     var total = 0.0;
     for (var i = 0u; i < 8u; i++) {
         total += t.weights[i] * usable[i];
@@ -95,21 +107,11 @@ fn trilinear_masked(local: vec3<f32>, mask: u32, voxel: vec3<u32>) -> Trilinear 
     let res = volume.resolution.xyz;
     let g = clamp((local + 0.5) * vec3<f32>(res) - 0.5, vec3(0.0), vec3<f32>(res - 1u));
     let base = stencil_base(voxel);
-    let f = clamp(g - vec3<f32>(base), vec3(0.0), vec3(1.0));
-    var t: Trilinear;
-    var total = 0.0;
+    var usable: array<f32, 8>;
     for (var i = 0u; i < 8u; i++) {
-        let o = vec3<u32>(i & 1u, (i >> 1u) & 1u, (i >> 2u) & 1u);
-        t.cells[i] = cell_index(min(base + o, res - 1u), res);
-        let w = select(1.0 - f, f, vec3<bool>(o == vec3(1u)));
-        t.weights[i] = select(0.0, w.x * w.y * w.z, ((mask >> i) & 1u) != 0u);
-        total += t.weights[i];
+        usable[i] = f32((mask >> i) & 1u);
     }
-    t.found = total > 1e-4;
-    for (var i = 0u; i < 8u; i++) {
-        t.weights[i] = select(0.0, t.weights[i] / total, t.found);
-    }
-    return t;
+    return keep_usable(stencil(base, clamp(g - vec3<f32>(base), vec3(0.0), vec3(1.0))), usable);
 }
 
 // The occupancy voxel holding a volume-local position, clamped to the grid.

@@ -55,6 +55,5 @@ fn visibility_masks(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_
         }
         word |= mask << (8u * k);
     }
-    let index = (first.x + occ_res.x * (first.y + occ_res.y * first.z)) / 4u;
-    visibility[index] = word;
+    visibility[cell_index(first, occ_res) / 4u] = word;
 }

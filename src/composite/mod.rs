@@ -103,7 +103,6 @@ pub struct CompositePipelines {
     view_layout: BindGroupLayoutDescriptor,
     rsm_layout: BindGroupLayoutDescriptor,
     shader: Handle<Shader>,
-    filter_shader: Handle<Shader>,
     fullscreen: VertexState,
     rsm_debug: UniformBuffer<RsmDebugUniform>,
 }
@@ -142,7 +141,6 @@ impl FromWorld for CompositePipelines {
                 ),
             ),
             shader: world.resource::<CompositeShader>().0.clone(),
-            filter_shader: world.resource::<CompositeShader>().2.clone(),
             fullscreen: world.resource::<FullscreenShader>().to_vertex_state(),
             rsm_debug: UniformBuffer::default(),
         }
@@ -390,19 +388,8 @@ pub(crate) fn filter_gi_target(
     let diagnostics = diagnostics.as_deref();
     let span = diagnostics.time_span(ctx.command_encoder(), "diffuse_gi/filter");
     {
-        let mut pass = ctx.begin_tracked_render_pass(RenderPassDescriptor {
-            label: Some("diffuse_gi_filter"),
-            color_attachments: &[Some(RenderPassColorAttachment {
-                view: &filtered.default_view,
-                depth_slice: None,
-                resolve_target: None,
-                ops: Operations { load: LoadOp::Clear(default()), store: StoreOp::Store },
-            })],
-            depth_stencil_attachment: None,
-            timestamp_writes: None,
-            occlusion_query_set: None,
-            multiview_mask: None,
-        });
+        // The fullscreen triangle writes every texel (no discard), so nothing needs clearing first.
+        let mut pass = begin_target_pass(&mut ctx, "diffuse_gi_filter", &filtered.default_view);
         pass.set_render_pipeline(pipeline);
         pass.set_bind_group(0, &group, &[view_offset.offset]);
         pass.draw(0..3, 0..1);
@@ -536,8 +523,8 @@ fn init_composite_pipelines(world: &mut World) {
     let pipelines = CompositePipelines::from_world(world);
     let filters = FilterPipelines {
         view_layout: pipelines.view_layout.clone(),
-        shader: pipelines.filter_shader.clone(),
-        fullscreen: world.resource::<FullscreenShader>().to_vertex_state(),
+        shader: world.resource::<CompositeShader>().2.clone(),
+        fullscreen: pipelines.fullscreen.clone(),
     };
     world.insert_resource(pipelines);
     world.insert_resource(filters);

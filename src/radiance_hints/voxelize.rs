@@ -116,13 +116,7 @@ pub fn voxelize_update(
                 }
             }
             albedo_sums(snapshot, local_from_world, res, cells, &mut out.albedo_sums);
-        }
-        // Validity: only hints inside the box can have been put inside (or let out of) the moved solid.
-        if let Some(cells) = cell_box(local_from_world, res, lo, hi, 0) {
-            validity_boxes.push(cells);
-        }
-        // Validity changes in the hint cells the box touches, occupancy in the voxels; both in voxels.
-        if let Some(cells) = cell_box(local_from_world, res, lo, hi, 1) {
+            // Validity changes in the hint cells the box touches, occupancy in the voxels; both in voxels.
             let scale = occupancy_res.as_vec3() / res.as_vec3();
             let a = (cells.0.as_vec3() * scale).floor().as_uvec3();
             let b = (((cells.1 + 1).as_vec3() * scale).ceil().as_uvec3()).min(occupancy_res) - 1;
@@ -130,6 +124,10 @@ pub fn voxelize_update(
                 VoxelChange::Voxels(lo, hi) => VoxelChange::Voxels(lo.min(a), hi.max(b)),
                 _ => VoxelChange::Voxels(a, b),
             };
+        }
+        // Validity: only hints inside the box can have been put inside (or let out of) the moved solid.
+        if let Some(cells) = cell_box(local_from_world, res, lo, hi, 0) {
+            validity_boxes.push(cells);
         }
         if let Some(voxels) = cell_box(local_from_world, occupancy_res, lo, hi, 1) {
             for z in voxels.0.z..=voxels.1.z {
