@@ -128,7 +128,11 @@ fn vpl_count(scene: &StandardScene, settings: &VplSettings) -> usize {
         StandardScene::Cornell => (bevy_diffuse_gi::scenes::cornell_snapshot(), cornell::CAMERA_POSITION),
         StandardScene::Cellar => (bevy_diffuse_gi::scenes::cellar_snapshot(), cellar::CAMERA_POSITION),
         StandardScene::SponzaLike => (bevy_diffuse_gi::scenes::sponza_like_snapshot(), sponza_like::CAMERA_POSITION),
-        StandardScene::Gltf(_) | StandardScene::Dynamic | StandardScene::EmissivePanel | StandardScene::OpenField => return 0,
+        StandardScene::Gltf(_)
+        | StandardScene::Dynamic
+        | StandardScene::EmissivePanel
+        | StandardScene::OpenField
+        | StandardScene::NearLight => return 0,
     };
     let lights: Vec<_> = snapshot.lights.iter().map(|l| l.light).collect();
     let guides: Vec<_> = lights.iter().map(|l| EmissionGuide::from_pilots(&pilot_hits(&snapshot, l), &[camera])).collect();

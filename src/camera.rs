@@ -64,6 +64,16 @@ pub enum GiMethod {
     /// maps (Ritschel 2008), the clamped geometry term, and screen-space bias compensation (Novák 2011).
     /// Settings: [`VplSettings`](crate::vpl::VplSettings) on the camera.
     Vpl,
+    /// The reflective shadow map gather (Dachsbacher & Stamminger 2005): each pixel sums the texels of
+    /// every GI light's RSM in a disk around its projection, as point lights without visibility. One
+    /// bounce, no indirect shadows; no volume. Settings:
+    /// [`RsmGatherSettings`](crate::rsm_gather::RsmGatherSettings) on the camera.
+    RsmGather,
+    /// Direct Radiance Mapping (Frisvad et al. 2005): each pixel gathers a few regularly spaced
+    /// "sample photons" of every GI light's direct radiance map (its RSM), weighted by an approximate
+    /// solid angle. One bounce, no indirect shadows; the cheapest method. Settings:
+    /// [`DrmSettings`](crate::drm::DrmSettings) on the camera.
+    Drm,
 }
 
 impl serde::Serialize for GiMethod {
@@ -74,14 +84,22 @@ impl serde::Serialize for GiMethod {
 
 impl GiMethod {
     /// Every method, for menus.
-    pub const ALL: [GiMethod; 2] = [GiMethod::RadianceHints, GiMethod::Vpl];
+    pub const ALL: [GiMethod; 4] = [GiMethod::RadianceHints, GiMethod::Vpl, GiMethod::RsmGather, GiMethod::Drm];
 
     /// Short name, as the headless renderer's `--method` spells it.
     pub const fn name(self) -> &'static str {
         match self {
             GiMethod::RadianceHints => "rh",
             GiMethod::Vpl => "vpl",
+            GiMethod::RsmGather => "rsm",
+            GiMethod::Drm => "drm",
         }
+    }
+
+    /// Whether the method reads the GI lights' reflective shadow maps per pixel of the view (so that the
+    /// RSMs must be drawn while a camera uses it, even without a volume).
+    pub const fn gathers_rsm_per_pixel(self) -> bool {
+        matches!(self, GiMethod::RsmGather | GiMethod::Drm)
     }
 }
 

@@ -22,13 +22,15 @@
 //! ```
 //!
 //! Modules: [`composite`] (the GI frame every method shares: the per-view indirect-light target, the
-//! composite into the image, debug views), the methods [`radiance_hints`] and [`vpl`] (with the
-//! screen-space bias compensation of [`ssbc`]), their shared input [`rsm`] (reflective shadow maps),
+//! composite into the image, debug views), the methods [`radiance_hints`], [`vpl`] (with the
+//! screen-space bias compensation of [`ssbc`]), and the one-bounce gathers [`rsm_gather`] and [`drm`],
+//! their shared input [`rsm`] (reflective shadow maps), the settings helpers of [`settings`],
 //! [`camera`] and [`light`] (the user's components), [`ui`] (the egui panel, feature `egui`). The measuring instruments: [`scene`] (CPU snapshot of the world), [`reference`](mod@reference)
 //! (path-traced ground truth), [`metrics`] (errors), [`scenes`] (standard scenes), [`headless`].
 
 pub mod camera;
 pub mod composite;
+pub mod drm;
 pub mod emitters;
 pub mod hdr_image;
 pub mod headless;
@@ -38,9 +40,11 @@ pub mod radiance_hints;
 #[cfg(feature = "reference")]
 pub mod reference;
 pub mod rsm;
+pub mod rsm_gather;
 pub mod sampling;
 pub mod scene;
 pub mod scenes;
+pub mod settings;
 pub mod sh;
 pub mod ssbc;
 #[cfg(feature = "egui")]
@@ -59,6 +63,8 @@ pub mod prelude {
     pub use crate::radiance_hints::{DepthOcclusion, RadianceHintsCascade, RadianceHintsVolume};
     pub use crate::sh::ShOrder;
     pub use crate::vpl::VplSettings;
+    pub use crate::rsm_gather::{RsmGatherSettings, RsmSampleWeights};
+    pub use crate::drm::{DrmSettings, DrmSolidAngle};
     #[cfg(feature = "egui")]
     pub use crate::ui::DiffuseGiInspectorPlugin;
 }
@@ -96,6 +102,8 @@ impl Plugin for DiffuseGiPlugin {
             radiance_hints::RadianceHintsPlugin,
             vpl::VplPlugin,
             ssbc::SsbcPlugin,
+            rsm_gather::RsmGatherPlugin,
+            drm::DrmPlugin,
         ));
     }
 }

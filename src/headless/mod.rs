@@ -338,9 +338,8 @@ fn attach_camera(
                 output: o.gi_output,
                 ..default()
             });
-            if method == GiMethod::Vpl {
-                commands.entity(entity).insert(o.vpl.clone());
-            }
+            // Every method's settings: a camera uses only its method's (and `--switch-method` finds them).
+            commands.entity(entity).insert((o.vpl.clone(), o.rsm_gather.clone(), o.drm.clone()));
             if let Some((levels, extent)) = o.rh_cascade {
                 let rh = RadianceHintsVolume { sizing: crate::radiance_hints::GridSizing::Fixed, ..o.rh.clone() };
                 let defaults = crate::radiance_hints::RadianceHintsCascade::default();
@@ -547,9 +546,8 @@ fn switch_method(
     }
     for (entity, mut gi) in &mut cameras {
         gi.method = method;
-        if method == GiMethod::Vpl {
-            commands.entity(entity).insert(headless.options.vpl.clone());
-        }
+        let o = &headless.options;
+        commands.entity(entity).insert((o.vpl.clone(), o.rsm_gather.clone(), o.drm.clone()));
     }
 }
 

@@ -7,6 +7,8 @@ use bevy::prelude::default;
 
 use crate::camera::{GiMethod, GiOutput};
 use crate::vpl::VplSettings;
+use crate::drm::{DrmSettings, DrmSolidAngle};
+use crate::rsm_gather::RsmGatherSettings;
 use crate::radiance_hints::{DepthOcclusion, GridSizing, IrradianceReconstruction, RadianceHintsVolume};
 use crate::scenes::StandardScene;
 use crate::sh::ShOrder;
@@ -25,7 +27,7 @@ pub enum HeadlessMethod {
 
 impl HeadlessMethod {
     /// Every accepted `--method` value.
-    pub const NAMES: &'static [&'static str] = &["none", "reference", "rh", "vpl"];
+    pub const NAMES: &'static [&'static str] = &["none", "reference", "rh", "vpl", "rsm", "drm"];
 
     pub fn parse(text: &str) -> Result<Self, String> {
         match text {
@@ -97,6 +99,12 @@ pub struct HeadlessOptions {
     /// VPL settings (`--preset` and the `--vpl-*`/`--ssbc-*` overrides), passed on unclamped like `rh`.
     #[serde(skip)]
     pub vpl: VplSettings,
+    /// RSM gather settings (`--preset` and the `--rsm-*` overrides), passed on unclamped like `rh`.
+    #[serde(skip)]
+    pub rsm_gather: RsmGatherSettings,
+    /// Direct Radiance Mapping settings (`--preset` and the `--drm-*` overrides), passed on unclamped.
+    #[serde(skip)]
+    pub drm: DrmSettings,
     /// Fit the hint counts to the scene's proportions (cubic cells), unless `--rh-resolution` was given.
     pub rh_fit_cells: bool,
     /// Radiance Hints: a camera-centred cascade of this many levels (`--rh-cascade N`, innermost box
@@ -147,6 +155,8 @@ impl Default for HeadlessOptions {
             pixel_centers: false,
             rh: RadianceHintsVolume::default(),
             vpl: VplSettings::default(),
+            rsm_gather: RsmGatherSettings::default(),
+            drm: DrmSettings::default(),
             rh_fit_cells: true,
             rh_cascade: None,
             half_resolution: crate::camera::DiffuseGi::default().half_resolution,
@@ -166,7 +176,7 @@ impl Default for HeadlessOptions {
 /// Usage text of the `headless` example.
 pub const USAGE: &str = "\
 usage: headless [--scene cornell|PATH.glb] [--size WxH] [--frames N] [--out FILE.exr]
-                [--method none|reference|rh] [--indirect-only] [--spp N] [--seed S]
+                [--method none|reference|rh|vpl|rsm|drm] [--indirect-only] [--spp N] [--seed S]
                 [--max-bounces N] [--ev100 EV] [--burley-direct] [--pixel-centers]
                 [--preset low|medium|high] [--rh-resolution N|XxYxZ] [--rh-longest N]
                 [--rh-cell M] [--rh-hints N] [--rh-max-hints N] [--rh-cascade LEVELS]
@@ -180,9 +190,12 @@ usage: headless [--scene cornell|PATH.glb] [--size WxH] [--frames N] [--out FILE
                 [--vpl-paths N] [--vpl-bounces N] [--vpl-seed S] [--vpl-bound B] [--vpl-ism-resolution N]
                 [--vpl-ism-points N] [--vpl-ism-bias F] [--ssbc-steps N] [--ssbc-solid-angle SR]
                 [--ssbc-levels N] [--ssbc-blur on|off]
+                [--rsm-samples N] [--rsm-radius R] [--rsm-weights paper|density]
+                [--drm-samples N] [--drm-solid-angle 11|14|15]
+                [--drm-mip on|off]
                 [--half-res|--full-res] [--gi-output composite|irradiance-volume] [--debug-view VIEW]
                 [--animate-light] [--animate-meshes N] [--pose-frame K] [--stop-animation-at K]
-                [--extra-triangles N] [--switch-method FRAMES:rh|vpl]
+                [--extra-triangles N] [--switch-method FRAMES:rh|vpl|rsm|drm]
 
   --scene          cornell, cellar, sponza_like, dynamic or a glTF 2.0 file (default cornell)
   --size           image size in pixels, 1..=8192 each                  (default 256x256)
@@ -190,7 +203,8 @@ usage: headless [--scene cornell|PATH.glb] [--size WxH] [--frames N] [--out FILE
   --out            the linear float EXR to write; FILE.json goes beside it (default out/render.exr)
   --method         none = Bevy's direct light; reference = CPU path tracer;
                    rh = Radiance Hints over a volume fitted to the scene;
-                   vpl = VPLs with imperfect shadow maps and SSBC           (default none)
+                   vpl = VPLs with imperfect shadow maps and SSBC;
+                   rsm = the RSM gather; drm = Direct Radiance Mapping      (default none)
   --indirect-only  write only the indirect light the method adds
   --spp            path-tracer samples per pixel, 1..=1048576            (default 2048)
   --seed           path-tracer random seed                               (default 0)
@@ -198,7 +212,8 @@ usage: headless [--scene cornell|PATH.glb] [--size WxH] [--frames N] [--out FILE
   --ev100          exposure override in EV100                            (default: the scene's)
   --burley-direct  path tracer: shade direct light with Bevy's Burley lobe (for the direct check)
   --pixel-centers  path tracer: one ray through each pixel centre, no pixel filter (for the direct check)
-  --preset         the method's preset (RadianceHintsVolume or VplSettings) (default medium)
+  --preset         the method's preset (RadianceHintsVolume, VplSettings, RsmGatherSettings or
+                   DrmSettings)                                          (default medium)
   --rh-*           override one RadianceHintsVolume field (see its docs); the plugin clamps
                    out-of-range values with a warning. --rh-depth-occlusion 0 turns §8 off.
                    The grid: --rh-resolution (fixed counts), --rh-longest N (fixed cubic cells, N
@@ -209,6 +224,10 @@ usage: headless [--scene cornell|PATH.glb] [--size WxH] [--frames N] [--out FILE
                    ism-resolution (texels), ism-points, ism-bias (fraction of the distance)
   --ssbc-*         override an SSBC field of VplSettings: steps (0 = clamped only), solid-angle (sr),
                    levels, blur (on|off)
+  --rsm-*          override one RsmGatherSettings field: samples (per pixel and light), radius (fraction
+                   of the RSM's side), weights (paper: ξ₁², density: ξ₁)
+  --drm-*          override one DrmSettings field: samples (photons per axis of each light face, M = N²),
+                   solid-angle (the paper's Eq. 11, 14 or 15), mip (on|off: mip-mapped photons)
   --half-res       compute the bounced light at half resolution (the default)
   --full-res       compute the bounced light at full resolution
   --gi-output      composite (per pixel, default) or irradiance-volume (Bevy's light probe)
@@ -290,13 +309,33 @@ pub fn parse_args<'a>(args: impl IntoIterator<Item = &'a str>) -> Result<Headles
             "--burley-direct" => options.burley_direct = true,
             "--pixel-centers" => options.pixel_centers = true,
             "--preset" => {
-                (options.rh, options.vpl) = match value(flag, &mut args)? {
-                    "low" => (RadianceHintsVolume::LOW, VplSettings::LOW),
-                    "medium" => (RadianceHintsVolume::MEDIUM, VplSettings::MEDIUM),
-                    "high" => (RadianceHintsVolume::HIGH, VplSettings::HIGH),
+                (options.rh, options.vpl, options.rsm_gather, options.drm) = match value(flag, &mut args)? {
+                    "low" => (RadianceHintsVolume::LOW, VplSettings::LOW, RsmGatherSettings::LOW, DrmSettings::LOW),
+                    "medium" => (RadianceHintsVolume::MEDIUM, VplSettings::MEDIUM, RsmGatherSettings::MEDIUM, DrmSettings::MEDIUM),
+                    "high" => (RadianceHintsVolume::HIGH, VplSettings::HIGH, RsmGatherSettings::HIGH, DrmSettings::HIGH),
                     other => return Err(format!("--preset: unknown preset `{other}` (low, medium, high)")),
                 }
             }
+            "--rsm-samples" => options.rsm_gather.samples = any_number(flag, value(flag, &mut args)?)?,
+            "--rsm-radius" => options.rsm_gather.radius = any_number(flag, value(flag, &mut args)?)?,
+            "--rsm-weights" => {
+                use crate::rsm_gather::RsmSampleWeights as W;
+                options.rsm_gather.weights = match value(flag, &mut args)? {
+                    "paper" => W::Paper,
+                    "density" => W::Density,
+                    other => return Err(format!("--rsm-weights: `{other}` is not paper or density")),
+                }
+            }
+            "--drm-samples" => options.drm.samples_per_axis = any_number(flag, value(flag, &mut args)?)?,
+            "--drm-solid-angle" => {
+                options.drm.solid_angle = match value(flag, &mut args)? {
+                    "11" => DrmSolidAngle::Constant,
+                    "14" => DrmSolidAngle::TexelArea,
+                    "15" => DrmSolidAngle::SceneDiagonal,
+                    other => return Err(format!("--drm-solid-angle: `{other}` is not 11, 14 or 15 (the paper's equations)")),
+                }
+            }
+            "--drm-mip" => options.drm.mip_mapped = on_off(flag, value(flag, &mut args)?)?,
             "--vpl-paths" => options.vpl.light_paths = any_number(flag, value(flag, &mut args)?)?,
             "--vpl-bounces" => options.vpl.bounces = any_number(flag, value(flag, &mut args)?)?,
             "--vpl-seed" => options.vpl.seed = any_number(flag, value(flag, &mut args)?)?,
@@ -461,7 +500,7 @@ pub fn parse_args<'a>(args: impl IntoIterator<Item = &'a str>) -> Result<Headles
         return Err("--switch-method: the switch must come before the last of --frames".into());
     }
     if options.switch_method.is_some() && options.method.gi().is_none() {
-        return Err("--switch-method: switches from a GI method (--method rh or vpl)".into());
+        return Err("--switch-method: switches from a GI method (--method rh, vpl, rsm or drm)".into());
     }
     if options.indirect_only && options.gi_output == GiOutput::IrradianceVolume {
         return Err("--indirect-only measures the per-pixel reconstruction; render the IrradianceVolume output \
@@ -530,6 +569,19 @@ mod tests {
         for name in HeadlessMethod::NAMES {
             assert_eq!(HeadlessMethod::parse(name).unwrap().name(), *name);
         }
+    }
+
+    #[test]
+    fn one_bounce_methods_take_presets_and_overrides() {
+        let o = parse_args("--method drm --preset high --drm-solid-angle 11 --drm-mip off".split_whitespace()).unwrap();
+        assert_eq!(o.method, HeadlessMethod::Gi(GiMethod::Drm));
+        assert_eq!((o.drm.samples_per_axis, o.drm.solid_angle, o.drm.mip_mapped), (16, DrmSolidAngle::Constant, false));
+        let o = parse_args("--method rsm --preset low --rsm-radius 0.2 --rsm-samples 50".split_whitespace()).unwrap();
+        assert_eq!(o.method, HeadlessMethod::Gi(GiMethod::RsmGather));
+        assert_eq!((o.rsm_gather.samples, o.rsm_gather.radius), (50, 0.2));
+        let err = |s: &str| parse_args(s.split_whitespace()).unwrap_err();
+        assert!(err("--drm-solid-angle 12").contains("11, 14 or 15"));
+        assert!(err("--drm-mip maybe").contains("on or off"));
     }
 
     #[test]

@@ -270,7 +270,7 @@ pub(crate) fn extract_volumes(
         .iter()
         .any(|(camera, gi)| camera.is_active && gi.enabled && gi.method == GiMethod::RadianceHints);
     if !used {
-        let next = RsmFocus::default();
+        let next = RsmFocus { bounds: None, volumes_need: false, ..*focus };
         if *focus != next {
             *focus = next;
         }
@@ -301,7 +301,7 @@ pub(crate) fn extract_volumes(
         });
     }
     extracted.volumes.sort_by_key(|v| v.entity);
-    let next = RsmFocus { bounds, needed: !extracted.volumes.is_empty() };
+    let next = RsmFocus { bounds, volumes_need: !extracted.volumes.is_empty(), ..*focus };
     if *focus != next {
         *focus = next;
     }

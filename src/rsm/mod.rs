@@ -62,13 +62,40 @@ pub const KIND_DIRECTIONAL: u32 = 0;
 pub const KIND_SPOT: u32 = 1;
 pub const KIND_POINT: u32 = 2;
 
-/// What the methods that read RSMs ask of them, written during extraction: whether any camera's method
-/// needs them this frame (no consumer: no face is drawn), and the region the RSMs of directional lights
-/// are fitted to (the union of every GI volume's bounds).
+/// What the methods that read RSMs ask of them, written during extraction: whether any of them needs
+/// them this frame (no consumer: no face is drawn), and the region the RSMs of directional lights are
+/// fitted to (the union of every GI volume's bounds; the whole scene without volumes).
+///
+/// Each consumer writes only its own field: the volume methods `bounds` and `volumes_need`, the RSM module
+/// itself `views_need` for the cameras whose method gathers from the RSMs per pixel
+/// ([`GiMethod::gathers_rsm_per_pixel`]).
 #[derive(Resource, Default, Clone, Copy, Debug, PartialEq)]
 pub struct RsmFocus {
     pub bounds: Option<(Vec3, Vec3)>,
-    pub needed: bool,
+    /// A volume method (Radiance Hints) reads the RSMs this frame.
+    pub volumes_need: bool,
+    /// An active camera's method reads the RSMs per pixel this frame.
+    pub views_need: bool,
+}
+
+impl RsmFocus {
+    /// Whether any method reads the RSMs this frame.
+    pub fn needed(&self) -> bool {
+        self.volumes_need || self.views_need
+    }
+}
+
+/// Sets [`RsmFocus::views_need`]: whether an active camera's method gathers from the RSMs per pixel.
+pub(crate) fn extract_rsm_view_demand(
+    cameras: bevy::render::Extract<Query<(&Camera, &crate::camera::DiffuseGi)>>,
+    mut focus: ResMut<RsmFocus>,
+) {
+    let need = cameras
+        .iter()
+        .any(|(camera, gi)| camera.is_active && gi.enabled && gi.method.gathers_rsm_per_pixel());
+    if focus.views_need != need {
+        focus.views_need = need;
+    }
 }
 
 /// Uniform of one RSM face (`RsmFace` in `shaders/rsm/rsm_types.wgsl`).
@@ -311,6 +338,9 @@ pub struct RsmAtlas {
     pub lights: StorageBuffer<Vec<GpuGiLight>>,
     /// Face uniforms, one per layer in use.
     pub face_uniforms: DynamicUniformBuffer<RsmFaceUniform>,
+    /// The same faces as a storage array indexed by layer, for the passes that read every face (the
+    /// per-pixel gathers project points into them).
+    pub faces: StorageBuffer<Vec<RsmFaceUniform>>,
     /// `(layer, dynamic offset, resolution)` of the faces to draw this frame.
     pub dirty_faces: Vec<(u32, u32, u32)>,
     /// Bumped whenever any RSM content changes; volumes compare it with what they were built from.
@@ -364,6 +394,7 @@ impl RsmAtlas {
             slots: Vec::new(),
             lights: StorageBuffer::default(),
             face_uniforms: DynamicUniformBuffer::default(),
+            faces: StorageBuffer::default(),
             dirty_faces: Vec::new(),
             version: 0,
             vertices: None,
@@ -412,7 +443,10 @@ impl Plugin for RsmPlugin {
             .init_resource::<ExtractedGiLights>()
             .init_resource::<RsmFocus>()
             .add_systems(RenderStartup, (init_rsm_pipeline, init_rsm_atlas))
-            .add_systems(ExtractSchedule, (extract::extract_gi_geometry, extract::extract_gi_lights))
+            .add_systems(
+                ExtractSchedule,
+                (extract::extract_gi_geometry, extract::extract_gi_lights, extract_rsm_view_demand),
+            )
             .add_systems(Render, prepare_rsm.in_set(RenderSystems::PrepareResources))
             .add_systems(RenderGraph, draw_rsm.in_set(RenderGraphSystems::Render).before(camera_driver));
     }
@@ -552,7 +586,9 @@ pub(crate) fn prepare_rsm(
     atlas.face_uniforms.clear();
     atlas.dirty_faces.clear();
     let mut gpu_lights = Vec::new();
+    let mut all_faces = Vec::new();
     for (entity, first_layer, faces, resolution, light_faces) in layouts {
+        all_faces.extend_from_slice(&light_faces.faces);
         let kept = previous
             .iter()
             .find(|s| s.entity == entity && s.first_layer == first_layer && s.resolution == resolution);
@@ -608,6 +644,15 @@ pub(crate) fn prepare_rsm(
     }
     *atlas.lights.get_mut() = gpu_lights;
     atlas.lights.write_buffer(&device, &queue);
+    if all_faces.is_empty() {
+        all_faces.push(RsmFaceUniform::default());
+    }
+    if *atlas.faces.get() != all_faces {
+        *atlas.faces.get_mut() = all_faces;
+        atlas.faces.write_buffer(&device, &queue);
+    } else if atlas.faces.buffer().is_none() {
+        atlas.faces.write_buffer(&device, &queue);
+    }
 }
 
 /// Whether the box `lo..hi` may be visible through the clip volume of `clip_from_world` (wgpu depth
@@ -634,7 +679,7 @@ pub fn frustum_overlaps(clip_from_world: Mat4, lo: Vec3, hi: Vec3) -> bool {
 }
 
 /// Draws the RSM faces that changed, once per frame and before any camera renders (the `RenderGraph`
-/// schedule), and only while a camera's method reads RSMs ([`RsmFocus::needed`]); until then the changed
+/// schedule), and only while a method reads RSMs ([`RsmFocus::needed`]); until then the changed
 /// faces stay pending.
 pub(crate) fn draw_rsm(
     mut atlas: ResMut<RsmAtlas>,
@@ -643,7 +688,7 @@ pub(crate) fn draw_rsm(
     focus: Res<RsmFocus>,
     mut ctx: RenderContext,
 ) {
-    if !focus.needed || atlas.dirty_faces.is_empty() {
+    if !focus.needed() || atlas.dirty_faces.is_empty() {
         return;
     }
     let (Some(pipeline), Some(uniforms)) =

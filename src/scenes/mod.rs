@@ -8,6 +8,7 @@
 //! * [`StandardScene::EmissivePanel`]: the Cornell box lit only by a glowing ceiling panel
 //!   (`emissive_panel.rs`).
 //! * [`StandardScene::OpenField`]: a 60 m sunlit field with a few buildings (`open_field.rs`).
+//! * [`StandardScene::NearLight`]: `cornell` with a block hung just below the light (`near_light.rs`).
 //! * [`StandardScene::Dynamic`]: a room with ten moving objects and an orbiting light (`dynamic.rs`).
 //! * [`StandardScene::Gltf`]: any glTF 2.0 file, loaded through Bevy's glTF loader (meshes,
 //!   `StandardMaterial`s, `KHR_lights_punctual` lights, the first camera). Bevy spawns glTF lights without
@@ -22,6 +23,7 @@ pub mod cellar;
 pub mod cornell;
 pub mod dynamic;
 pub mod emissive_panel;
+pub mod near_light;
 pub mod open_field;
 pub mod sponza_like;
 
@@ -40,6 +42,7 @@ pub use cellar::{CELLAR_EV100, cellar_snapshot, spawn_cellar};
 pub use cornell::{CORNELL_EV100, cornell_snapshot, spawn_cornell};
 pub use dynamic::{DYNAMIC_EV100, DynamicScene, dynamic_pose, spawn_dynamic};
 pub use emissive_panel::{EMISSIVE_PANEL_EV100, spawn_emissive_panel};
+pub use near_light::{NEAR_LIGHT_EV100, spawn_near_light};
 pub use open_field::{OPEN_FIELD_EV100, spawn_open_field};
 pub use sponza_like::{SPONZA_EV100, spawn_sponza_like, sponza_like_snapshot};
 
@@ -60,6 +63,9 @@ pub enum StandardScene {
     EmissivePanel,
     /// A 60 m sunlit field with a few buildings: a large, sparse, open volume.
     OpenField,
+    /// `cornell` with a white block hung just below the spot light: most of the light's map shows a
+    /// small, brightly lit surface (Fig. 7 of the Direct Radiance Mapping paper).
+    NearLight,
     /// A glTF 2.0 file (`.glb` or `.gltf`).
     Gltf(PathBuf),
 }
@@ -67,7 +73,7 @@ pub enum StandardScene {
 impl StandardScene {
     /// Names accepted by [`StandardScene::parse`] besides file paths.
     pub const NAMES: &'static [&'static str] =
-        &["cornell", "cellar", "sponza_like", "dynamic", "emissive_panel", "open_field"];
+        &["cornell", "cellar", "sponza_like", "dynamic", "emissive_panel", "open_field", "near_light"];
 
     /// A scene name, or a path to a `.glb`/`.gltf` file (which must exist).
     pub fn parse(text: &str) -> Result<Self, String> {
@@ -78,6 +84,7 @@ impl StandardScene {
             "dynamic" => Ok(Self::Dynamic),
             "emissive_panel" => Ok(Self::EmissivePanel),
             "open_field" => Ok(Self::OpenField),
+            "near_light" => Ok(Self::NearLight),
             path if path.ends_with(".glb") || path.ends_with(".gltf") => {
                 let p = Path::new(path);
                 if !p.is_file() {
@@ -101,6 +108,7 @@ impl StandardScene {
             Self::Dynamic => "dynamic".into(),
             Self::EmissivePanel => "emissive_panel".into(),
             Self::OpenField => "open_field".into(),
+            Self::NearLight => "near_light".into(),
             Self::Gltf(path) => path.display().to_string(),
         }
     }
@@ -263,6 +271,10 @@ pub fn spawn_standard_scene(
         }
         StandardScene::OpenField => {
             spawn_open_field(commands, meshes, materials, ev100.unwrap_or(OPEN_FIELD_EV100));
+            commands.insert_resource(SceneStatus::Ready);
+        }
+        StandardScene::NearLight => {
+            spawn_near_light(commands, meshes, materials, ev100.unwrap_or(NEAR_LIGHT_EV100));
             commands.insert_resource(SceneStatus::Ready);
         }
         StandardScene::Gltf(path) => {

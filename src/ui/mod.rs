@@ -13,6 +13,8 @@ use bevy::prelude::*;
 use bevy_egui::{EguiContexts, EguiPlugin, EguiPrimaryContextPass, egui};
 
 use crate::camera::{DiffuseGi, GiDebugView, GiMethod, GiOutput};
+use crate::drm::{DrmSettings, DrmSolidAngle};
+use crate::rsm_gather::{RsmGatherSettings, RsmSampleWeights};
 use crate::vpl::VplSettings;
 use crate::light::GiLight;
 use crate::radiance_hints::{DepthOcclusion, GridSizing, IrradianceReconstruction, RadianceHintsVolume};
@@ -33,7 +35,14 @@ impl Plugin for DiffuseGiInspectorPlugin {
 fn inspector_ui(
     mut contexts: EguiContexts,
     mut commands: Commands,
-    mut cameras: Query<(Entity, Option<&Name>, &mut DiffuseGi, Option<&mut VplSettings>)>,
+    mut cameras: Query<(
+        Entity,
+        Option<&Name>,
+        &mut DiffuseGi,
+        Option<&mut VplSettings>,
+        Option<&mut RsmGatherSettings>,
+        Option<&mut DrmSettings>,
+    )>,
     mut volumes: Query<(Entity, Option<&Name>, &mut RadianceHintsVolume, &GlobalTransform)>,
     mut lights: Query<(Entity, Option<&Name>, &mut GiLight)>,
     diagnostics: Option<Res<DiagnosticsStore>>,
@@ -41,7 +50,7 @@ fn inspector_ui(
     let label = |entity: Entity, name: Option<&Name>| name.map_or_else(|| format!("{entity}"), |n| n.to_string());
     egui::Window::new("Diffuse GI").default_width(330.0).show(contexts.ctx_mut()?, |ui| {
         egui::CollapsingHeader::new("Cameras").default_open(true).show(ui, |ui| {
-            for (entity, name, mut gi, vpl) in &mut cameras {
+            for (entity, name, mut gi, vpl, rsm_gather, drm) in &mut cameras {
                 ui.label(label(entity, name));
                 let mut g = gi.clone();
                 ui.checkbox(&mut g.enabled, "bounced light (G)");
@@ -69,8 +78,8 @@ fn inspector_ui(
                 if g != *gi {
                     *gi = g;
                 }
-                if gi.method == GiMethod::Vpl {
-                    match vpl {
+                match gi.method {
+                    GiMethod::Vpl => match vpl {
                         Some(mut settings) => {
                             ui.push_id(entity, |ui| vpl_ui(ui, &mut settings));
                         }
@@ -79,7 +88,28 @@ fn inspector_ui(
                                 commands.entity(entity).insert(VplSettings::MEDIUM);
                             }
                         }
-                    }
+                    },
+                    GiMethod::RsmGather => match rsm_gather {
+                        Some(mut settings) => {
+                            ui.push_id(entity, |ui| rsm_gather_ui(ui, &mut settings));
+                        }
+                        None => {
+                            if ui.button("tune RSM gather settings (adds RsmGatherSettings::MEDIUM)").clicked() {
+                                commands.entity(entity).insert(RsmGatherSettings::MEDIUM);
+                            }
+                        }
+                    },
+                    GiMethod::Drm => match drm {
+                        Some(mut settings) => {
+                            ui.push_id(entity, |ui| drm_ui(ui, &mut settings));
+                        }
+                        None => {
+                            if ui.button("tune DRM settings (adds DrmSettings::MEDIUM)").clicked() {
+                                commands.entity(entity).insert(DrmSettings::MEDIUM);
+                            }
+                        }
+                    },
+                    GiMethod::RadianceHints => {}
                 }
                 ui.separator();
             }
@@ -155,6 +185,66 @@ fn vpl_ui(ui: &mut egui::Ui, settings: &mut Mut<VplSettings>) {
     );
     ui.add(egui::Slider::new(&mut v.ssbc_levels, 1..=8).text("SSBC levels"));
     ui.checkbox(&mut v.ssbc_blur, "SSBC blur");
+    ui.add(egui::Slider::new(&mut v.intensity, 0.0..=1000.0).logarithmic(true).text("intensity"));
+    if v != **settings {
+        **settings = v;
+    }
+}
+
+/// The widgets of a camera's [`RsmGatherSettings`]; each range is the field's valid range.
+pub fn rsm_gather_ui(ui: &mut egui::Ui, settings: &mut Mut<RsmGatherSettings>) {
+    let mut v = (**settings).clone();
+    ui.horizontal(|ui| {
+        ui.label("RSM gather preset");
+        for (name, preset) in [("Low", RsmGatherSettings::LOW), ("Medium", RsmGatherSettings::MEDIUM), ("High", RsmGatherSettings::HIGH)] {
+            if ui.button(name).clicked() {
+                v = preset;
+            }
+        }
+    });
+    ui.add(
+        egui::Slider::new(&mut v.samples, 1..=RsmGatherSettings::MAX_SAMPLES)
+            .logarithmic(true)
+            .text("samples per pixel and light"),
+    );
+    ui.add(egui::Slider::new(&mut v.radius, 0.01..=1.0).text("disk radius r_max (× RSM side)"));
+    ui.horizontal(|ui| {
+        ui.label("sample weights:");
+        ui.radio_value(&mut v.weights, RsmSampleWeights::Density, "ξ₁ (density)");
+        ui.radio_value(&mut v.weights, RsmSampleWeights::Paper, "ξ₁² (paper)");
+    });
+    ui.add(egui::Slider::new(&mut v.intensity, 0.0..=1000.0).logarithmic(true).text("intensity"));
+    if v != **settings {
+        **settings = v;
+    }
+}
+
+/// The widgets of a camera's [`DrmSettings`]; each range is the field's valid range.
+pub fn drm_ui(ui: &mut egui::Ui, settings: &mut Mut<DrmSettings>) {
+    let mut v = (**settings).clone();
+    ui.horizontal(|ui| {
+        ui.label("DRM preset");
+        for (name, preset) in [("Low", DrmSettings::LOW), ("Medium", DrmSettings::MEDIUM), ("High", DrmSettings::HIGH)] {
+            if ui.button(name).clicked() {
+                v = preset;
+            }
+        }
+    });
+    ui.add(
+        egui::Slider::new(&mut v.samples_per_axis, 1..=DrmSettings::MAX_SAMPLES_PER_AXIS)
+            .text("photons per axis n (M = n² per light face)"),
+    );
+    ui.horizontal(|ui| {
+        ui.label("solid angle:");
+        for (choice, label) in [
+            (DrmSolidAngle::TexelArea, "Eq. 14 (area)"),
+            (DrmSolidAngle::SceneDiagonal, "Eq. 15 (diagonal)"),
+            (DrmSolidAngle::Constant, "Eq. 11 (2π/M)"),
+        ] {
+            ui.radio_value(&mut v.solid_angle, choice, label);
+        }
+    });
+    ui.checkbox(&mut v.mip_mapped, "mip-mapped photons (§5, no flashing)");
     ui.add(egui::Slider::new(&mut v.intensity, 0.0..=1000.0).logarithmic(true).text("intensity"));
     if v != **settings {
         **settings = v;
