@@ -1,0 +1,177 @@
+//! The one-bounce gathers (RSM gather, Direct Radiance Mapping) rendered on the GPU (lavapipe in CI),
+//! asserted on pixels and against the committed one-bounce and full path-traced ground truths.
+//! Every bound below is the value measured on lavapipe (`docs/one_bounce.md`) plus a margin.
+#![cfg(feature = "gpu_tests")]
+
+mod common;
+
+use std::path::PathBuf;
+
+use bevy_diffuse_gi::camera::GiMethod;
+use bevy_diffuse_gi::drm::{DrmSettings, DrmSolidAngle};
+use bevy_diffuse_gi::hdr_image::HdrImage;
+use bevy_diffuse_gi::headless::{HeadlessMethod, HeadlessOptions};
+use bevy_diffuse_gi::metrics;
+use bevy_diffuse_gi::rsm_gather::{RsmGatherSettings, RsmSampleWeights};
+use bevy_diffuse_gi::scenes::StandardScene;
+use common::{Region, check, render};
+
+fn ground_truth(name: &str) -> HdrImage {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("assets/ground_truth").join(name);
+    HdrImage::read(&path).unwrap_or_else(|e| panic!("ground truth {}: {e}", path.display()))
+}
+
+fn rsm_gather(scene: StandardScene, settings: RsmGatherSettings) -> HdrImage {
+    render(&HeadlessOptions {
+        scene,
+        method: HeadlessMethod::Gi(GiMethod::RsmGather),
+        indirect_only: true,
+        rsm_gather: settings,
+        frames: 3,
+        ..Default::default()
+    })
+    .image
+}
+
+fn drm(scene: StandardScene, settings: DrmSettings) -> HdrImage {
+    render(&HeadlessOptions {
+        scene,
+        method: HeadlessMethod::Gi(GiMethod::Drm),
+        indirect_only: true,
+        drm: settings,
+        frames: 3,
+        ..Default::default()
+    })
+    .image
+}
+
+/// Floor beside the red wall: lit by the strip of red wall the spot reaches.
+const FLOOR_BY_RED: Region = Region::new("floor by the red wall", 12, 228, 40, 246);
+/// The small box's side facing the green wall.
+const BOX_BY_GREEN: Region = Region::new("small box side facing the green wall", 186, 175, 192, 225);
+/// The ceiling: lit by the white floor.
+const CEILING: Region = Region::new("ceiling", 60, 8, 196, 30);
+
+/// Asserts the error and energy of `image` against `truth` are within the bounds, and nothing is
+/// non-finite; returns the metrics.
+#[track_caller]
+fn within(test: &str, image: &HdrImage, truth: &HdrImage, max_block_rmse: f64, energy: (f64, f64)) -> metrics::ErrorMetrics {
+    check(test, !image.has_non_finite(), image, Some(truth), "NaN or Inf in the indirect light".into());
+    let m = metrics::compare(image, truth).expect("same size");
+    eprintln!("{test}: block rel. RMSE {:.3}, energy {:.3}", m.block_relative_rmse, m.energy_ratio);
+    check(
+        test,
+        m.block_relative_rmse <= max_block_rmse && (energy.0..=energy.1).contains(&m.energy_ratio),
+        image,
+        Some(truth),
+        format!(
+            "block rel. RMSE {:.3} (at most {max_block_rmse}), energy {:.3} (in {energy:?})",
+            m.block_relative_rmse, m.energy_ratio
+        ),
+    );
+    m
+}
+
+/// Asserts the two colour-bleeding regions of `cornell`: red on the floor by the red wall, green on the
+/// small box's side facing the green wall.
+#[track_caller]
+fn bleeds_colour(test: &str, image: &HdrImage, truth: &HdrImage) {
+    let floor = FLOOR_BY_RED.mean(test, image);
+    check(test, floor[0] > 3.0 * floor[1] && floor[0] > 0.05, image, Some(truth), format!("no red on the floor: {floor:?}"));
+    let side = BOX_BY_GREEN.mean(test, image);
+    let ceiling = CEILING.mean(test, image);
+    let (g_side, g_ceiling) = (side[1] / side[0], ceiling[1] / ceiling[0]);
+    check(
+        test,
+        g_side > g_ceiling + 0.05,
+        image,
+        Some(truth),
+        format!("no green on the box side: G/R {g_side:.3} against {g_ceiling:.3} on the ceiling"),
+    );
+}
+
+#[test]
+fn rsm_gather_bleeds_colour_and_matches_the_one_bounce_truth_of_cornell() {
+    let test = "rsm_gather_cornell";
+    let truth = ground_truth("cornell_b1.exr");
+    let image = rsm_gather(StandardScene::Cornell, RsmGatherSettings::default());
+    // Measured: 0.209 / 1.074 (medium); the target for the high preset is ≤ 0.30.
+    within(test, &image, &truth, 0.26, (0.85, 1.2));
+    bleeds_colour(test, &image, &truth);
+    // One bounce is about half the light of the closed box: the gap to the full truth is by design.
+    let full = metrics::compare(&image, &ground_truth("cornell.exr")).expect("same size");
+    check(test, (0.4..0.75).contains(&full.energy_ratio), &image, None, format!("energy against all bounces {:.3}", full.energy_ratio));
+
+    // The paper's ξ₁² weights lose the light of the texels near the pixel's projection (measured 0.74
+    // of the truth's energy at 400 samples against 1.09 with the density weights).
+    let paper = rsm_gather(StandardScene::Cornell, RsmGatherSettings { weights: RsmSampleWeights::Paper, ..RsmGatherSettings::HIGH });
+    let high = rsm_gather(StandardScene::Cornell, RsmGatherSettings::HIGH);
+    let (p, h) = (metrics::compare(&paper, &truth).unwrap(), within("rsm_gather_cornell_high", &high, &truth, 0.24, (0.9, 1.2)));
+    check(
+        test,
+        p.energy_ratio < 0.85 * h.energy_ratio && p.block_relative_rmse > h.block_relative_rmse + 0.1,
+        &paper,
+        Some(&truth),
+        format!("ξ₁² weights: energy {:.3}, RMSE {:.3}; ξ₁: {:.3}, {:.3}", p.energy_ratio, p.block_relative_rmse, h.energy_ratio, h.block_relative_rmse),
+    );
+}
+
+#[test]
+fn drm_bleeds_colour_and_matches_the_one_bounce_truth_of_cornell() {
+    let test = "drm_cornell";
+    let truth = ground_truth("cornell_b1.exr");
+    // The paper's 3 × 3 photons: coarse (0.731 / 0.798 measured); the surfaces next to the boxes get
+    // nothing from photons whose mean position lies behind them.
+    let default = drm(StandardScene::Cornell, DrmSettings::default());
+    within(test, &default, &truth, 0.79, (0.7, 0.95));
+    // 16 × 16 photons: 0.382 / 1.078 measured, the issue's ≤ 0.40.
+    let image = drm(StandardScene::Cornell, DrmSettings::HIGH);
+    within("drm_cornell_high", &image, &truth, 0.43, (0.9, 1.2));
+    bleeds_colour("drm_cornell_high", &image, &truth);
+}
+
+#[test]
+fn eq_11_overexposes_as_an_object_nears_the_light_and_eq_14_does_not() {
+    // The paper's Fig. 7: a block hung just below the spot fills most of its map with a small, brightly
+    // lit surface. Measured energy against the one-bounce truth: Eq. 11 7.97 on cornell and 91 with the
+    // block; Eq. 14 0.80 and 0.75.
+    let test = "drm_near_light";
+    let energy = |scene: StandardScene, truth: &str, solid_angle| {
+        let image = drm(scene, DrmSettings { solid_angle, ..DrmSettings::default() });
+        check(test, !image.has_non_finite(), &image, None, "NaN or Inf in the indirect light".into());
+        metrics::compare(&image, &ground_truth(truth)).expect("same size").energy_ratio
+    };
+    let eq11 = (energy(StandardScene::Cornell, "cornell_b1.exr", DrmSolidAngle::Constant), energy(StandardScene::NearLight, "near_light_b1.exr", DrmSolidAngle::Constant));
+    let eq14 = (energy(StandardScene::Cornell, "cornell_b1.exr", DrmSolidAngle::TexelArea), energy(StandardScene::NearLight, "near_light_b1.exr", DrmSolidAngle::TexelArea));
+    eprintln!("{test}: energy Eq. 11 {eq11:.3?}, Eq. 14 {eq14:.3?} (cornell, near_light)");
+    assert!(eq11.1 > 30.0 && eq11.1 > 5.0 * eq11.0, "Eq. 11 does not overexpose near the light: {eq11:?}");
+    assert!((0.55..1.3).contains(&eq14.1) && (0.75..1.3).contains(&(eq14.1 / eq14.0)), "Eq. 14 near the light: {eq14:?}");
+}
+
+#[test]
+fn every_light_kind_bounces_in_the_one_bounce_gathers() {
+    // Directional (sponza_like, the sun through the roof) against its one-bounce truth. Measured: RSM
+    // gather 0.533 / 1.017; DRM 16 × 16 1.419 / 1.090 (few photons land in the sun patch).
+    let truth = ground_truth("sponza_like_b1.exr");
+    within("rsm_gather_sponza_like", &rsm_gather(StandardScene::SponzaLike, RsmGatherSettings::default()), &truth, 0.6, (0.85, 1.2));
+    within("drm_sponza_like", &drm(StandardScene::SponzaLike, DrmSettings::HIGH), &truth, 1.55, (0.8, 1.3));
+    // Point light (dynamic: six cube faces) against the full truth, of which one bounce is about half.
+    // Measured: RSM gather 0.631 / 0.468, DRM 16 × 16 0.617 / 0.481.
+    let truth = ground_truth("dynamic.exr");
+    within("rsm_gather_dynamic", &rsm_gather(StandardScene::Dynamic, RsmGatherSettings::default()), &truth, 0.7, (0.35, 0.6));
+    within("drm_dynamic", &drm(StandardScene::Dynamic, DrmSettings::HIGH), &truth, 0.7, (0.35, 0.6));
+}
+
+#[test]
+fn absurd_settings_are_clamped_and_stay_finite() {
+    let test = "one_bounce_absurd_settings";
+    let rsm = rsm_gather(
+        StandardScene::Cornell,
+        RsmGatherSettings { samples: u32::MAX, radius: f32::NAN, intensity: f32::INFINITY, ..Default::default() },
+    );
+    check(test, !rsm.has_non_finite(), &rsm, None, "NaN or Inf from clamped RSM gather settings".into());
+    let d = drm(StandardScene::Cornell, DrmSettings { samples_per_axis: 0, intensity: -1.0, ..Default::default() });
+    check(test, !d.has_non_finite(), &d, None, "NaN or Inf from clamped DRM settings".into());
+    // Intensity −1 is clamped to 0: no light.
+    check(test, d.pixels.iter().all(|p| p[0] == 0.0 && p[1] == 0.0 && p[2] == 0.0), &d, None, "intensity 0 still adds light".into());
+}
