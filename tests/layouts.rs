@@ -3,9 +3,11 @@
 //! fails here instead of corrupting a buffer at run time.
 
 use bevy::render::render_resource::ShaderType;
+use bevy_diffuse_gi::drm::{DrmFaceJob, DrmGatherUniform, DrmPhoton, DrmPhotonsUniform};
 use bevy_diffuse_gi::emitters::GpuEmitter;
 use bevy_diffuse_gi::radiance_hints::prepare::{RhVolumeUniform, VisibilityRegion};
 use bevy_diffuse_gi::rsm::{GpuGiLight, RsmFaceUniform};
+use bevy_diffuse_gi::rsm_gather::{RsmGatherSample, RsmGatherUniform};
 use bevy_diffuse_gi::ssbc::SsbcUniform;
 use bevy_diffuse_gi::vpl::{GpuVpl, VplUniform};
 
@@ -39,6 +41,12 @@ fn rust_and_wgsl_agree_on_every_gpu_struct() {
         ("vpl/vpl_types.wgsl", "Vpl", GpuVpl::min_size().get()),
         ("vpl/vpl_types.wgsl", "VplUniform", VplUniform::min_size().get()),
         ("ssbc/ssbc.wgsl", "SsbcUniform", SsbcUniform::min_size().get()),
+        ("rsm_gather/gather.wgsl", "RsmGatherUniform", RsmGatherUniform::min_size().get()),
+        ("rsm_gather/gather.wgsl", "RsmGatherSample", RsmGatherSample::min_size().get()),
+        ("drm/drm_types.wgsl", "DrmPhoton", DrmPhoton::min_size().get()),
+        ("drm/drm_types.wgsl", "DrmFaceJob", DrmFaceJob::min_size().get()),
+        ("drm/drm_types.wgsl", "DrmPhotonsUniform", DrmPhotonsUniform::min_size().get()),
+        ("drm/drm_types.wgsl", "DrmGatherUniform", DrmGatherUniform::min_size().get()),
     ];
     for (file, name, rust) in cases {
         assert_eq!(wgsl_size(file, name), rust, "{file}: struct {name} and its Rust ShaderType differ in size");

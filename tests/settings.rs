@@ -94,3 +94,27 @@ fn invalid_cascade_settings_warn_once_each_and_still_give_sane_levels() {
     assert_eq!(boxes.len(), 6, "{boxes:?}");
     assert!(boxes.iter().all(|(_, t)| t.translation.is_finite() && t.scale.is_finite() && t.scale.min_element() > 0.0));
 }
+
+#[test]
+fn invalid_one_bounce_settings_warn_once_per_field_and_name_the_value_used() {
+    let mut app = app_with((
+        DiffuseGi { method: GiMethod::RsmGather, ..default() },
+        RsmGatherSettings { samples: 0, radius: f32::NAN, ..default() },
+        DrmSettings { samples_per_axis: 1000, intensity: -3.0, ..default() },
+    ));
+    for _ in 0..10 {
+        app.update();
+    }
+    let messages = &app.world().resource::<DiffuseGiWarnings>().messages;
+    for (field, value) in [("samples", "1"), ("radius", "1"), ("samples_per_axis", "16"), ("intensity", "0")] {
+        let warned: Vec<_> = messages.iter().filter(|m| m.contains(&format!("`{field}`, using {value}"))).collect();
+        assert_eq!(warned.len(), 1, "{field}: {messages:#?}");
+    }
+    assert_eq!(messages.len(), 4, "{messages:#?}");
+    assert!(messages.iter().any(|m| m.contains("RsmGatherSettings")) && messages.iter().any(|m| m.contains("DrmSettings")));
+    // The presets are valid: nothing more when they replace the bad values.
+    let entity = app.world_mut().query_filtered::<Entity, With<DrmSettings>>().single(app.world()).unwrap();
+    app.world_mut().entity_mut(entity).insert((RsmGatherSettings::HIGH, DrmSettings::LOW));
+    app.update();
+    assert_eq!(app.world().resource::<DiffuseGiWarnings>().messages.len(), 4);
+}

@@ -3,6 +3,43 @@
 // position of a pixel from the depth buffer.
 #define_import_path bevy_diffuse_gi::gi_frame
 
+#import bevy_pbr::pbr_deferred_types::unpack_24bit_normal
+#import bevy_pbr::utils::octahedral_decode
+
+// The visible surface a target texel stands for.
+struct GiSurface {
+    // The full-resolution pixel (`target_pixel`).
+    pixel: vec2<i32>,
+    position: vec3<f32>,
+    normal: vec3<f32>,
+    // false: the pixel sees no geometry (background).
+    found: bool,
+}
+
+// The surface of target texel `texel` at `scale` pixels per texel: world position from the depth buffer,
+// normal from the G-buffer.
+fn surface_at(
+    texel: vec2<i32>,
+    scale: i32,
+    world_from_clip: mat4x4<f32>,
+    depth_texture: texture_depth_2d,
+    gbuffer: texture_2d<u32>,
+) -> GiSurface {
+    var s: GiSurface;
+    let size = vec2<i32>(textureDimensions(depth_texture));
+    s.pixel = target_pixel(texel, scale, size);
+    let depth = textureLoad(depth_texture, s.pixel, 0);
+    s.found = depth > 0.0;
+    s.position = world_at(world_from_clip, s.pixel, size, depth);
+    s.normal = octahedral_decode(unpack_24bit_normal(textureLoad(gbuffer, s.pixel, 0).a));
+    return s;
+}
+
+// `v` where every component is finite, otherwise zero: no NaN or Inf may reach the image.
+fn finite_or_zero(v: vec3<f32>) -> vec3<f32> {
+    return select(vec3(0.0), v, all(v == v) && all(abs(v) < vec3(1e30)));
+}
+
 // The pixel a target texel stands for: its top-left pixel at `scale` pixels per texel.
 fn target_pixel(texel: vec2<i32>, scale: i32, size: vec2<i32>) -> vec2<i32> {
     return min(texel * scale, size - 1);

@@ -1,5 +1,5 @@
 // The GPU layouts of Direct Radiance Mapping, shared by its passes. The Rust side is `DrmPhoton`,
-// `DrmPhotonsUniform` and `DrmGatherUniform` in src/drm/render.rs (`ShaderType`).
+// `DrmFaceJob`, `DrmPhotonsUniform` and `DrmGatherUniform` in src/drm/render.rs (`ShaderType`).
 #define_import_path bevy_diffuse_gi::drm_types
 
 const PI: f32 = 3.141592653589793;
@@ -12,6 +12,14 @@ struct DrmPhoton {
     normal: vec4<f32>,
     // rgb: reflected flux ρΦ (lumens); w: Eq. 11's solid angle 2π/M of its light
     flux: vec4<f32>,
+}
+
+// One light face whose map is cut into photons.
+struct DrmFaceJob {
+    layer: u32,
+    light: u32,
+    // photons of this face's light (n² × faces): Eq. 11's M
+    light_photons: u32,
 }
 
 struct DrmPhotonsUniform {

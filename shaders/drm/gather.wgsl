@@ -11,10 +11,8 @@
 
 #import bevy_core_pipeline::fullscreen_vertex_shader::FullscreenVertexOutput
 #import bevy_render::view::View
-#import bevy_pbr::pbr_deferred_types::unpack_24bit_normal
-#import bevy_pbr::utils::octahedral_decode
 #import bevy_diffuse_gi::drm_types::{PI, DrmPhoton, DrmGatherUniform}
-#import bevy_diffuse_gi::gi_frame::{target_pixel, world_at}
+#import bevy_diffuse_gi::gi_frame::{surface_at, finite_or_zero}
 
 @group(0) @binding(0) var<uniform> view: View;
 @group(0) @binding(1) var depth_texture: texture_depth_2d;
@@ -30,14 +28,12 @@ const SOLID_ANGLE: u32 = #{DRM_SOLID_ANGLE}u;
 
 @fragment
 fn gather(in: FullscreenVertexOutput) -> @location(0) vec4<f32> {
-    let size = vec2<i32>(textureDimensions(depth_texture));
-    let pixel = target_pixel(vec2<i32>(floor(in.position.xy)), GI_SCALE, size);
-    let depth = textureLoad(depth_texture, pixel, 0);
-    if depth <= 0.0 {
+    let surface = surface_at(vec2<i32>(floor(in.position.xy)), GI_SCALE, view.world_from_clip, depth_texture, gbuffer);
+    if !surface.found {
         discard;
     }
-    let x = world_at(view.world_from_clip, pixel, size, depth);
-    let n = octahedral_decode(unpack_24bit_normal(textureLoad(gbuffer, pixel, 0).a));
+    let x = surface.position;
+    let n = surface.normal;
 
     var e = vec3(0.0);
     for (var j = 0u; j < u.photon_count; j++) {
@@ -68,8 +64,5 @@ fn gather(in: FullscreenVertexOutput) -> @location(0) vec4<f32> {
         let radiance = photon.flux.rgb / (PI * area);
         e += radiance * (cos_theta * solid_angle);
     }
-    var result = e / PI * u.intensity;
-    // Never let a non-finite value reach the image.
-    result = select(vec3(0.0), result, all(result == result) && all(abs(result) < vec3(1e30)));
-    return vec4(result, 1.0);
+    return vec4(finite_or_zero(e / PI * u.intensity), 1.0);
 }

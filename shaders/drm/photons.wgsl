@@ -7,16 +7,8 @@
 //   otherwise:       the cell's centre texel, its flux and areas scaled by the cell's texel count.
 // The photon's radiance is then L_o = ρΦ / (π A_p) (Lambertian), and it stands for its whole cell.
 
-#import bevy_diffuse_gi::drm_types::{PI, DrmPhoton, DrmPhotonsUniform}
+#import bevy_diffuse_gi::drm_types::{PI, DrmPhoton, DrmPhotonsUniform, DrmFaceJob}
 #import bevy_diffuse_gi::rsm_types::{GiLight, RsmFace, LIGHT_KIND_DIRECTIONAL}
-
-struct DrmFaceJob {
-    layer: u32,
-    light: u32,
-    // photons of this face's light (n² × faces): Eq. 11's M
-    light_photons: u32,
-    unused: u32,
-}
 
 @group(0) @binding(0) var<uniform> u: DrmPhotonsUniform;
 @group(0) @binding(1) var<storage, read> jobs: array<DrmFaceJob>;

@@ -17,10 +17,8 @@
 
 #import bevy_core_pipeline::fullscreen_vertex_shader::FullscreenVertexOutput
 #import bevy_render::view::View
-#import bevy_pbr::pbr_deferred_types::unpack_24bit_normal
-#import bevy_pbr::utils::octahedral_decode
 #import bevy_diffuse_gi::rsm_types::{GiLight, RsmFace, LIGHT_KIND_DIRECTIONAL}
-#import bevy_diffuse_gi::gi_frame::{target_pixel, world_at}
+#import bevy_diffuse_gi::gi_frame::{surface_at, finite_or_zero}
 
 struct RsmGatherUniform {
     samples: u32,
@@ -141,20 +139,15 @@ fn gather_light(light: GiLight, x: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
 
 @fragment
 fn gather(in: FullscreenVertexOutput) -> @location(0) vec4<f32> {
-    let size = vec2<i32>(textureDimensions(depth_texture));
-    let pixel = target_pixel(vec2<i32>(floor(in.position.xy)), GI_SCALE, size);
-    let depth = textureLoad(depth_texture, pixel, 0);
-    if depth <= 0.0 {
+    let surface = surface_at(vec2<i32>(floor(in.position.xy)), GI_SCALE, view.world_from_clip, depth_texture, gbuffer);
+    if !surface.found {
         discard;
     }
-    let x = world_at(view.world_from_clip, pixel, size, depth);
-    let n = octahedral_decode(unpack_24bit_normal(textureLoad(gbuffer, pixel, 0).a));
+    let x = surface.position;
+    let n = surface.normal;
     var e = vec3(0.0);
     for (var l = 0u; l < u.light_count; l++) {
         e += gather_light(lights[l], x, n);
     }
-    var result = e / PI * u.intensity;
-    // Never let a non-finite value reach the image.
-    result = select(vec3(0.0), result, all(result == result) && all(abs(result) < vec3(1e30)));
-    return vec4(result, 1.0);
+    return vec4(finite_or_zero(e / PI * u.intensity), 1.0);
 }

@@ -7,10 +7,8 @@
 
 #import bevy_core_pipeline::fullscreen_vertex_shader::FullscreenVertexOutput
 #import bevy_render::view::View
-#import bevy_pbr::pbr_deferred_types::unpack_24bit_normal
-#import bevy_pbr::utils::octahedral_decode
 #import bevy_diffuse_gi::vpl_types::{PI, Vpl, VplUniform, to_local, paraboloid_coords, ism_index}
-#import bevy_diffuse_gi::gi_frame::{target_pixel, world_at}
+#import bevy_diffuse_gi::gi_frame::{surface_at, finite_or_zero}
 
 @group(0) @binding(0) var<uniform> view: View;
 @group(0) @binding(1) var depth_texture: texture_depth_2d;
@@ -53,14 +51,12 @@ fn visibility(i: u32, local: vec3<f32>, d: f32, cos_x: f32) -> f32 {
 
 @fragment
 fn gather(in: FullscreenVertexOutput) -> @location(0) vec4<f32> {
-    let size = vec2<i32>(textureDimensions(depth_texture));
-    let pixel = target_pixel(vec2<i32>(floor(in.position.xy)), GI_SCALE, size);
-    let depth = textureLoad(depth_texture, pixel, 0);
-    if depth <= 0.0 {
+    let surface = surface_at(vec2<i32>(floor(in.position.xy)), GI_SCALE, view.world_from_clip, depth_texture, gbuffer);
+    if !surface.found {
         discard;
     }
-    let x = world_at(view.world_from_clip, pixel, size, depth);
-    let n = octahedral_decode(unpack_24bit_normal(textureLoad(gbuffer, pixel, 0).a));
+    let x = surface.position;
+    let n = surface.normal;
 
     var e = vec3(0.0);
     for (var i = 0u; i < u.vpl_count; i++) {
@@ -81,13 +77,11 @@ fn gather(in: FullscreenVertexOutput) -> @location(0) vec4<f32> {
         let vis = visibility(i, to_local(vpl.normal.xyz, -w), d, cos_x);
         e += vpl.flux.rgb * (g * vis);
     }
-    var result = e / (PI * PI) * u.intensity;
-    // Never let a non-finite value reach the image.
-    result = select(vec3(0.0), result, all(result == result) && all(abs(result) < vec3(1e30)));
+    let result = finite_or_zero(e / (PI * PI) * u.intensity);
 
 #ifdef VPL_POSITIONS
-    let full = vec2<f32>(size);
-    let here = vec2<f32>(pixel) + 0.5;
+    let full = vec2<f32>(textureDimensions(depth_texture));
+    let here = vec2<f32>(surface.pixel) + 0.5;
     let surface_z = (view.view_from_world * vec4(x, 1.0)).z;
     for (var i = 0u; i < u.vpl_count; i++) {
         let vpl = vpls[i];

@@ -418,6 +418,31 @@ pub fn begin_target_pass<'a>(ctx: &'a mut RenderContext, label: &'static str, vi
     })
 }
 
+/// Draws a method's fullscreen pass into the camera's indirect-light target, inside the GPU time span
+/// `span`: `groups` are bound in order (group 0 is usually the view's, with its uniform offset), then one
+/// triangle covers the target. How every method writes the frame's target.
+pub fn draw_into_target(
+    ctx: &mut RenderContext,
+    span: &'static str,
+    label: &'static str,
+    target: &GiViewTarget,
+    pipeline: &RenderPipeline,
+    groups: &[(&BindGroup, &[u32])],
+) {
+    let diagnostics = ctx.diagnostic_recorder();
+    let diagnostics = diagnostics.as_deref();
+    let time = diagnostics.time_span(ctx.command_encoder(), span);
+    {
+        let mut pass = begin_target_pass(ctx, label, &target.texture.default_view);
+        pass.set_render_pipeline(pipeline);
+        for (index, (group, offsets)) in groups.iter().enumerate() {
+            pass.set_bind_group(index, group, offsets);
+        }
+        pass.draw(0..3, 0..1);
+    }
+    time.end(ctx.command_encoder());
+}
+
 /// Clears the camera's indirect-light target before its method writes it, so that a method switched
 /// off (or one whose pipelines are still compiling) leaves no stale light. Methods order their
 /// [`GiViewSystems::Produce`] passes `.after(clear_gi_target)` and draw with `LoadOp::Load`.

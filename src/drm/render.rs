@@ -4,7 +4,7 @@
 use bevy::core_pipeline::prepass::ViewPrepassTextures;
 use bevy::core_pipeline::schedule::camera_driver;
 use bevy::core_pipeline::{Core3d, FullscreenShader};
-use bevy::math::{UVec4, Vec4};
+use bevy::math::Vec4;
 use bevy::platform::collections::HashMap;
 use bevy::prelude::*;
 use bevy::render::diagnostic::RecordDiagnostics;
@@ -44,6 +44,17 @@ pub struct DrmPhoton {
     pub normal: Vec4,
     /// rgb: reflected flux `ρΦ` in lumens; w: Eq. 11's solid angle `2π / M` of its light.
     pub flux: Vec4,
+}
+
+/// One light face whose map is cut into photons (`DrmFaceJob` in `shaders/drm/drm_types.wgsl`).
+#[derive(ShaderType, Clone, Copy, Debug, Default, PartialEq)]
+pub struct DrmFaceJob {
+    /// Its layer of the RSM atlas.
+    pub layer: u32,
+    /// Its light's index in the atlas's light list.
+    pub light: u32,
+    /// Photons of its light (`n² × faces`): Eq. 11's M.
+    pub light_photons: u32,
 }
 
 /// The photon pass's uniform.
@@ -130,7 +141,7 @@ fn init_drm_pipelines(world: &mut World) {
             ShaderStages::COMPUTE,
             (
                 uniform_buffer::<DrmPhotonsUniform>(false),
-                storage_buffer_read_only_sized(false, None),
+                storage_buffer_read_only::<DrmFaceJob>(false),
                 texture_2d_array(unfilterable),
                 texture_2d_array(unfilterable),
                 texture_2d_array(unfilterable),
@@ -175,8 +186,8 @@ fn init_drm_pipelines(world: &mut World) {
 /// One set of sample photons: `n × n` per light face, mip-mapped or not.
 struct PhotonSet {
     photons: Buffer,
-    /// Per photon-producing face: layer, light index, photons of its light (`n² × faces`), unused.
-    jobs: Buffer,
+    /// The faces cut into photons, in atlas order.
+    jobs: StorageBuffer<Vec<DrmFaceJob>>,
     uniform: UniformBuffer<DrmPhotonsUniform>,
     count: u32,
     /// The RSM atlas version and light layout the photons were made from (`None`: not yet).
@@ -233,12 +244,7 @@ fn prepare_drm(
                 usage: BufferUsages::STORAGE,
                 mapped_at_creation: false,
             }),
-            jobs: device.create_buffer(&BufferDescriptor {
-                label: Some("diffuse_gi_drm_jobs"),
-                size: 16,
-                usage: BufferUsages::STORAGE,
-                mapped_at_creation: false,
-            }),
+            jobs: StorageBuffer::default(),
             uniform: UniformBuffer::default(),
             count: 0,
             built_from: None,
@@ -254,16 +260,17 @@ fn prepare_drm(
                     mapped_at_creation: false,
                 });
                 let faces_of = |light: u32| atlas.slots[light as usize].faces;
-                let mut jobs: Vec<UVec4> =
-                    faces.iter().map(|&(layer, light)| UVec4::new(layer, light, cells * faces_of(light), 0)).collect();
+                let mut jobs: Vec<DrmFaceJob> = faces
+                    .iter()
+                    .map(|&(layer, light)| DrmFaceJob { layer, light, light_photons: cells * faces_of(light) })
+                    .collect();
                 if jobs.is_empty() {
-                    jobs.push(UVec4::ZERO);
+                    // Storage buffers may not be empty.
+                    jobs.push(DrmFaceJob::default());
                 }
-                set.jobs = device.create_buffer_with_data(&BufferInitDescriptor {
-                    label: Some("diffuse_gi_drm_jobs"),
-                    contents: bytemuck::cast_slice(&jobs),
-                    usage: BufferUsages::STORAGE,
-                });
+                *set.jobs.get_mut() = jobs;
+                set.jobs.set_label(Some("diffuse_gi_drm_jobs"));
+                set.jobs.write_buffer(&device, &queue);
             }
             set.count = count;
             set.uniform.set(DrmPhotonsUniform {
@@ -321,7 +328,7 @@ fn build_photons(
         if set.built_from.as_ref() == Some(&set.wanted) {
             continue;
         }
-        let Some(uniform) = set.uniform.binding() else {
+        let (Some(uniform), Some(jobs)) = (set.uniform.binding(), set.jobs.binding()) else {
             continue;
         };
         if set.count > 0 {
@@ -330,7 +337,7 @@ fn build_photons(
                 &layout,
                 &BindGroupEntries::sequential((
                     uniform,
-                    set.jobs.as_entire_binding(),
+                    jobs,
                     &atlas.position_view,
                     &atlas.normal_view,
                     &atlas.flux_view,
@@ -391,17 +398,14 @@ fn gather_drm(
         &pipeline_cache.get_bind_group_layout(&pipelines.gather_layout),
         &BindGroupEntries::sequential((gather_uniforms, set.photons.as_entire_binding())),
     );
-    let diagnostics = ctx.diagnostic_recorder();
-    let diagnostics = diagnostics.as_deref();
-    let span = diagnostics.time_span(ctx.command_encoder(), "diffuse_gi/drm");
-    {
-        let mut pass = crate::composite::begin_target_pass(&mut ctx, "diffuse_gi_drm_gather", &target.texture.default_view);
-        pass.set_render_pipeline(pipeline);
-        pass.set_bind_group(0, &view_group, &[view_offset.offset]);
-        pass.set_bind_group(1, &gather_group, &[offset]);
-        pass.draw(0..3, 0..1);
-    }
-    span.end(ctx.command_encoder());
+    crate::composite::draw_into_target(
+        &mut ctx,
+        "diffuse_gi/drm",
+        "diffuse_gi_drm_gather",
+        target,
+        pipeline,
+        &[(&view_group, &[view_offset.offset]), (&gather_group, &[offset])],
+    );
 }
 
 /// Adds the DRM render-world systems; called from [`super::DrmPlugin::finish`].

@@ -5,7 +5,6 @@ use bevy::core_pipeline::{Core3d, FullscreenShader};
 use bevy::math::Vec4;
 use bevy::platform::collections::HashMap;
 use bevy::prelude::*;
-use bevy::render::diagnostic::RecordDiagnostics;
 use bevy::render::render_resource::binding_types::{
     storage_buffer_read_only, storage_buffer_read_only_sized, texture_2d, texture_2d_array, texture_depth_2d, uniform_buffer,
 };
@@ -247,17 +246,14 @@ fn gather_rsm(
             faces,
         )),
     );
-    let diagnostics = ctx.diagnostic_recorder();
-    let diagnostics = diagnostics.as_deref();
-    let span = diagnostics.time_span(ctx.command_encoder(), "diffuse_gi/rsm_gather");
-    {
-        let mut pass = crate::composite::begin_target_pass(&mut ctx, "diffuse_gi_rsm_gather", &target.texture.default_view);
-        pass.set_render_pipeline(pipeline);
-        pass.set_bind_group(0, &view_group, &[view_offset.offset]);
-        pass.set_bind_group(1, &gather_group, &[offset]);
-        pass.draw(0..3, 0..1);
-    }
-    span.end(ctx.command_encoder());
+    crate::composite::draw_into_target(
+        &mut ctx,
+        "diffuse_gi/rsm_gather",
+        "diffuse_gi_rsm_gather",
+        target,
+        pipeline,
+        &[(&view_group, &[view_offset.offset]), (&gather_group, &[offset])],
+    );
 }
 
 /// Adds the gather's render-world systems; called from [`super::RsmGatherPlugin::finish`].

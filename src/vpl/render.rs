@@ -402,17 +402,14 @@ fn gather_vpls(
         &pipeline_cache.get_bind_group_layout(&pipelines.gather_layout),
         &BindGroupEntries::sequential((vpl_uniforms, vpls.as_entire_binding(), ism.as_entire_binding())),
     );
-    let diagnostics = ctx.diagnostic_recorder();
-    let diagnostics = diagnostics.as_deref();
-    let span = diagnostics.time_span(ctx.command_encoder(), "diffuse_gi/vpl_gather");
-    {
-        let mut pass = crate::composite::begin_target_pass(&mut ctx, "diffuse_gi_vpl_gather", &target.texture.default_view);
-        pass.set_render_pipeline(pipeline);
-        pass.set_bind_group(0, &view_group, &[view_offset.offset]);
-        pass.set_bind_group(1, &gather_group, &[offset]);
-        pass.draw(0..3, 0..1);
-    }
-    span.end(ctx.command_encoder());
+    crate::composite::draw_into_target(
+        &mut ctx,
+        "diffuse_gi/vpl_gather",
+        "diffuse_gi_vpl_gather",
+        target,
+        pipeline,
+        &[(&view_group, &[view_offset.offset]), (&gather_group, &[offset])],
+    );
 }
 
 /// Adds the VPL method's render-world systems; called from [`super::VplPlugin::finish`].
