@@ -190,9 +190,10 @@ struct PhotonSet {
     jobs: StorageBuffer<Vec<DrmFaceJob>>,
     uniform: UniformBuffer<DrmPhotonsUniform>,
     count: u32,
-    /// The RSM atlas version and light layout the photons were made from (`None`: not yet).
-    built_from: Option<(u64, Vec<(u32, u32)>)>,
-    wanted: (u64, Vec<(u32, u32)>),
+    /// The light faces `(layer, light)` the buffers are laid out for.
+    faces: Vec<(u32, u32)>,
+    /// The RSM atlas version the photons were made from (`None`: not yet, or the layout changed).
+    built_version: Option<u64>,
 }
 
 /// The DRM method's GPU state: photon sets by `(n, mip_mapped)` (shared by the cameras that use the
@@ -236,7 +237,6 @@ fn prepare_drm(
         used.push(key);
         let cells = s.samples_per_axis * s.samples_per_axis;
         let count = faces.len() as u32 * cells;
-        let wanted = (atlas.version, faces.clone());
         let set = gpu.sets.entry(key).or_insert_with(|| PhotonSet {
             photons: device.create_buffer(&BufferDescriptor {
                 label: Some("diffuse_gi_drm_photons"),
@@ -247,31 +247,30 @@ fn prepare_drm(
             jobs: StorageBuffer::default(),
             uniform: UniformBuffer::default(),
             count: 0,
-            built_from: None,
-            wanted: (0, Vec::new()),
+            faces: Vec::new(),
+            built_version: None,
         });
-        if set.wanted != wanted {
-            if set.count != count || set.wanted.1 != faces {
-                let size = DrmPhoton::min_size().get() * count.max(1) as u64;
-                set.photons = device.create_buffer(&BufferDescriptor {
-                    label: Some("diffuse_gi_drm_photons"),
-                    size,
-                    usage: BufferUsages::STORAGE,
-                    mapped_at_creation: false,
-                });
-                let faces_of = |light: u32| atlas.slots[light as usize].faces;
-                let mut jobs: Vec<DrmFaceJob> = faces
-                    .iter()
-                    .map(|&(layer, light)| DrmFaceJob { layer, light, light_photons: cells * faces_of(light) })
-                    .collect();
-                if jobs.is_empty() {
-                    // Storage buffers may not be empty.
-                    jobs.push(DrmFaceJob::default());
-                }
-                *set.jobs.get_mut() = jobs;
-                set.jobs.set_label(Some("diffuse_gi_drm_jobs"));
-                set.jobs.write_buffer(&device, &queue);
+        // A new layout (lights, faces or photon count; the set is keyed by n and the mip mode): new
+        // buffers, and photons to make before the next gather.
+        if set.count != count || set.faces != faces || set.uniform.buffer().is_none() {
+            set.photons = device.create_buffer(&BufferDescriptor {
+                label: Some("diffuse_gi_drm_photons"),
+                size: DrmPhoton::min_size().get() * count.max(1) as u64,
+                usage: BufferUsages::STORAGE,
+                mapped_at_creation: false,
+            });
+            let faces_of = |light: u32| atlas.slots[light as usize].faces;
+            let mut jobs: Vec<DrmFaceJob> = faces
+                .iter()
+                .map(|&(layer, light)| DrmFaceJob { layer, light, light_photons: cells * faces_of(light) })
+                .collect();
+            if jobs.is_empty() {
+                // Storage buffers may not be empty.
+                jobs.push(DrmFaceJob::default());
             }
+            *set.jobs.get_mut() = jobs;
+            set.jobs.set_label(Some("diffuse_gi_drm_jobs"));
+            set.jobs.write_buffer(&device, &queue);
             set.count = count;
             set.uniform.set(DrmPhotonsUniform {
                 samples_per_axis: s.samples_per_axis,
@@ -279,7 +278,8 @@ fn prepare_drm(
                 mip_mapped: s.mip_mapped as u32,
             });
             set.uniform.write_buffer(&device, &queue);
-            set.wanted = wanted;
+            set.faces = faces.clone();
+            set.built_version = None;
         }
         let offset = gpu.uniforms.push(&DrmGatherUniform {
             photon_count: count,
@@ -297,8 +297,8 @@ fn prepare_drm(
     gpu.uniforms.write_buffer(&device, &queue);
 }
 
-/// Makes the sample photons of every set whose RSMs changed, once per frame after the RSMs are drawn
-/// and before the cameras.
+/// Makes the sample photons of every set whose RSMs changed (a new atlas version, compared after this
+/// frame's RSM faces were drawn) or whose layout changed, once per frame before the cameras.
 fn build_photons(
     mut gpu: ResMut<DrmGpu>,
     atlas: Res<RsmAtlas>,
@@ -306,7 +306,8 @@ fn build_photons(
     pipeline_cache: Res<PipelineCache>,
     mut ctx: RenderContext,
 ) {
-    if gpu.sets.values().all(|s| s.built_from.as_ref() == Some(&s.wanted)) {
+    let version = atlas.version;
+    if gpu.sets.values().all(|s| s.built_version == Some(version)) {
         return;
     }
     let (Some(pipeline), Some(lights), Some(faces)) =
@@ -325,7 +326,7 @@ fn build_photons(
     let span = diagnostics.pass_span(&mut pass, "diffuse_gi/drm_photons");
     pass.set_pipeline(pipeline);
     for set in gpu.sets.values_mut() {
-        if set.built_from.as_ref() == Some(&set.wanted) {
+        if set.built_version == Some(version) {
             continue;
         }
         let (Some(uniform), Some(jobs)) = (set.uniform.binding(), set.jobs.binding()) else {
@@ -350,10 +351,7 @@ fn build_photons(
             // One workgroup per photon, in rows of at most 65535.
             pass.dispatch_workgroups(set.count.min(65535), set.count.div_ceil(65535), 1);
         }
-        // Built from the RSMs as drawn this frame: record their version now, so that next frame's
-        // `wanted` (read before any drawing) matches and nothing is rebuilt until an RSM changes again.
-        set.wanted.0 = atlas.version;
-        set.built_from = Some(set.wanted.clone());
+        set.built_version = Some(version);
     }
     span.end(&mut pass);
 }
@@ -363,6 +361,7 @@ fn build_photons(
 fn gather_drm(
     view: ViewQuery<(Entity, &ExtractedDiffuseGi, &ViewUniformOffset, &ViewPrepassTextures, &GiViewTarget)>,
     gpu: Res<DrmGpu>,
+    atlas: Res<RsmAtlas>,
     pipelines: Res<DrmPipelines>,
     pipeline_cache: Res<PipelineCache>,
     view_uniforms: Res<ViewUniforms>,
@@ -375,7 +374,7 @@ fn gather_drm(
     let Some(&(offset, key, pipeline_id)) = gpu.views.get(&entity) else {
         return;
     };
-    let Some(set) = gpu.sets.get(&key).filter(|s| s.count > 0 && s.built_from.as_ref() == Some(&s.wanted)) else {
+    let Some(set) = gpu.sets.get(&key).filter(|s| s.count > 0 && s.built_version == Some(atlas.version)) else {
         return;
     };
     let (Some(pipeline), Some(uniforms), Some(depth), Some(gbuffer), Some(gather_uniforms)) = (
