@@ -57,7 +57,7 @@ use bevy::shader::Shader;
 
 /// Everything a user needs in scope.
 pub mod prelude {
-    pub use crate::{DiffuseGiPlugin, MainThreadCost};
+    pub use crate::{DiffuseGiPlugin, GiDeviceTiming, MainThreadCost};
     pub use crate::camera::{DiffuseGi, GiDebugView, GiMethod, GiOutput};
     pub use crate::light::GiLight;
     pub use crate::radiance_hints::{DepthOcclusion, RadianceHintsCascade, RadianceHintsVolume};
@@ -106,6 +106,37 @@ impl Plugin for DiffuseGiPlugin {
             drm::DrmPlugin,
         ));
     }
+
+    fn finish(&self, app: &mut App) {
+        use bevy::render::RenderApp;
+        use bevy::render::render_resource::WgpuFeatures;
+        use wgpu_types::DeviceType;
+        use bevy::render::renderer::{RenderAdapterInfo, RenderDevice};
+        let Some(render_app) = app.get_sub_app(RenderApp) else {
+            return;
+        };
+        let world = render_app.world();
+        let (Some(info), Some(device)) = (world.get_resource::<RenderAdapterInfo>(), world.get_resource::<RenderDevice>())
+        else {
+            return;
+        };
+        let timing = GiDeviceTiming {
+            device: info.name.clone(),
+            per_pass_times: info.device_type != DeviceType::Cpu && device.features().contains(WgpuFeatures::TIMESTAMP_QUERY),
+        };
+        app.insert_resource(timing);
+    }
+}
+
+/// What the GPU this app renders on says about timing the plugin's passes, for the panel and the tools.
+#[derive(Resource, Clone, Debug, Default, PartialEq)]
+pub struct GiDeviceTiming {
+    /// The adapter's name.
+    pub device: String,
+    /// Whether per-pass GPU times (Bevy's `RenderDiagnosticsPlugin` time spans) mean anything here:
+    /// false without timestamp queries, and on CPU rasterisers (lavapipe), whose timestamps do not
+    /// bracket compute work.
+    pub per_pass_times: bool,
 }
 
 /// Milliseconds of main-thread work the plugin did in the last frame, by part (0 where a part had

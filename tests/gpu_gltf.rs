@@ -110,3 +110,33 @@ fn textured_partly_metallic_gltf_has_the_same_colours_in_the_tracer_as_in_bevy()
     let seat = traced.region_mean(100, 120, 160, 140).expect("the seat is in view");
     check(test, seat[0] > 2.0 * seat[2], &traced, Some(&bevy), format!("the traced seat is not orange: {seat:?}"));
 }
+
+#[test]
+fn gltf_textures_in_jpeg_and_webp_load_and_colour_the_scene() {
+    // tests/assets/textured_chair_{jpeg,webp}.gltf (make_image_format_variants.py): the chair of
+    // textured_chair.gltf with its textures as external JPEG and WebP files, the formats most glTF files
+    // ship. Both must load and show the orange seat in Bevy and in the tracer.
+    for file in ["textured_chair_jpeg.gltf", "textured_chair_webp.gltf"] {
+        let test = format!("gltf_textures_{file}");
+        let scene = StandardScene::Gltf(asset(file));
+        let bevy = render(&HeadlessOptions { scene: scene.clone(), frames: 1, ..Default::default() }).image;
+        let traced = common::traced_direct(scene);
+        for (who, image) in [("Bevy", &bevy), ("the tracer", &traced)] {
+            let seat = image.region_mean(100, 120, 160, 140).expect("the seat is in view");
+            check(&test, seat[0] > 2.0 * seat[2], image, None, format!("{file}: the seat is not orange in {who}: {seat:?}"));
+        }
+    }
+}
+
+#[test]
+fn a_missing_texture_ends_the_run_at_once_naming_the_file() {
+    // tests/assets/missing_texture.gltf points its first texture at a file that does not exist. The run
+    // must fail while loading, with a message naming the glTF and the missing file, not wait for frames.
+    let options = HeadlessOptions { scene: StandardScene::Gltf(asset("missing_texture.gltf")), ..Default::default() };
+    let _guard = common::render_lock();
+    let started = std::time::Instant::now();
+    let error = headless::run(&options).expect_err("a glTF with a missing texture must not render");
+    assert!(error.contains("missing_texture.gltf") && error.contains("does_not_exist.png"), "{error}");
+    // Measured: well under a second; waiting out the loading frames took minutes on lavapipe.
+    assert!(started.elapsed().as_secs() < 60, "took {:?}: {error}", started.elapsed());
+}

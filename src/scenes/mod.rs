@@ -29,7 +29,7 @@ pub mod sponza_like;
 
 use std::path::{Path, PathBuf};
 
-use bevy::asset::LoadState;
+use bevy::asset::{LoadState, RecursiveDependencyLoadState};
 use bevy::camera::Exposure;
 use bevy::gltf::Gltf;
 use bevy::light::GlobalAmbientLight;
@@ -308,8 +308,19 @@ fn poll_gltf(
             pending.spawned = true;
         }
         Some(LoadState::Loaded) => {
-            if !asset_server.is_loaded_with_dependencies(pending.handle.id()) {
-                return;
+            // A texture or buffer that fails (a missing file, an image format this build cannot decode)
+            // ends the wait at once, with the loader's message, which names the file.
+            match asset_server.get_recursive_dependency_load_state(pending.handle.id()) {
+                Some(RecursiveDependencyLoadState::Loaded) => {}
+                Some(RecursiveDependencyLoadState::Failed(error)) => {
+                    commands.insert_resource(SceneStatus::Failed(format!(
+                        "cannot load glTF {}: a texture or buffer it uses failed: {error}",
+                        pending.path.display()
+                    )));
+                    pending.spawned = true;
+                    return;
+                }
+                _ => return,
             }
             let Some(gltf) = gltfs.get(pending.handle.id()) else {
                 return;

@@ -28,6 +28,10 @@ impl Plugin for DiffuseGiInspectorPlugin {
         if !app.is_plugin_added::<EguiPlugin>() {
             app.add_plugins(EguiPlugin::default());
         }
+        // The "GPU passes" section reads the per-pass time spans this plugin records.
+        if !app.is_plugin_added::<bevy::render::diagnostic::RenderDiagnosticsPlugin>() {
+            app.add_plugins(bevy::render::diagnostic::RenderDiagnosticsPlugin);
+        }
         app.add_systems(EguiPrimaryContextPass, inspector_ui);
     }
 }
@@ -46,6 +50,8 @@ fn inspector_ui(
     mut volumes: Query<(Entity, Option<&Name>, &mut RadianceHintsVolume, &GlobalTransform)>,
     mut lights: Query<(Entity, Option<&Name>, &mut GiLight)>,
     diagnostics: Option<Res<DiagnosticsStore>>,
+    warnings: Option<Res<crate::DiffuseGiWarnings>>,
+    timing: Option<Res<crate::GiDeviceTiming>>,
 ) -> Result {
     let label = |entity: Entity, name: Option<&Name>| name.map_or_else(|| format!("{entity}"), |n| n.to_string());
     egui::Window::new("Diffuse GI").default_width(330.0).show(contexts.ctx_mut()?, |ui| {
@@ -75,9 +81,7 @@ fn inspector_ui(
                         ui.selectable_value(&mut g.output, GiOutput::IrradianceVolume, "IrradianceVolume");
                     });
                 ui.checkbox(&mut g.half_resolution, "half resolution (every method)");
-                if g != *gi {
-                    *gi = g;
-                }
+                commit(g, &mut gi);
                 match gi.method {
                     GiMethod::Vpl => match vpl {
                         Some(mut settings) => {
@@ -133,9 +137,30 @@ fn inspector_ui(
                 }
             }
         });
+        let logged = warnings.as_ref().map_or(0, |w| w.messages.len());
+        egui::CollapsingHeader::new(format!("Warnings ({logged})")).default_open(logged > 0).show(ui, |ui| {
+            match warnings.as_deref() {
+                Some(w) if !w.messages.is_empty() => {
+                    for message in &w.messages {
+                        ui.label(message.strip_prefix("bevy_diffuse_gi: ").unwrap_or(message));
+                    }
+                }
+                _ => {
+                    ui.label("none: every setting is in range and the GPU has what the methods need");
+                }
+            }
+        });
         egui::CollapsingHeader::new("GPU passes (ms)").default_open(true).show(ui, |ui| {
+            if let Some(timing) = timing.as_deref().filter(|t| !t.per_pass_times) {
+                ui.label(format!(
+                    "not measurable on this device ({}): its timestamps do not bracket compute work; \
+                     compare frame times instead",
+                    timing.device
+                ));
+                return;
+            }
             let Some(store) = diagnostics else {
-                ui.label("no diagnostics (add RenderDiagnosticsPlugin)");
+                ui.label("no diagnostics");
                 return;
             };
             let mut rows: Vec<(String, f64)> = store
@@ -156,6 +181,15 @@ fn inspector_ui(
         });
     });
     Ok(())
+}
+
+/// Writes the values the widgets edited back into the component, only when they differ, so that opening
+/// the panel marks nothing changed (the plugin redoes work on a change). Every widget of the panel edits
+/// a copy of its component and commits it through here; tests drive settings changes the same way.
+pub fn commit<T: Component<Mutability = bevy::ecs::component::Mutable> + PartialEq>(edited: T, component: &mut Mut<T>) {
+    if edited != **component {
+        **component = edited;
+    }
 }
 
 /// The widgets of a camera's [`VplSettings`]; each range is the field's valid range.
@@ -186,9 +220,7 @@ fn vpl_ui(ui: &mut egui::Ui, settings: &mut Mut<VplSettings>) {
     ui.add(egui::Slider::new(&mut v.ssbc_levels, 1..=8).text("SSBC levels"));
     ui.checkbox(&mut v.ssbc_blur, "SSBC blur");
     ui.add(egui::Slider::new(&mut v.intensity, 0.0..=1000.0).logarithmic(true).text("intensity"));
-    if v != **settings {
-        **settings = v;
-    }
+    commit(v, settings);
 }
 
 /// The widgets of a camera's [`RsmGatherSettings`]; each range is the field's valid range.
@@ -214,9 +246,7 @@ pub fn rsm_gather_ui(ui: &mut egui::Ui, settings: &mut Mut<RsmGatherSettings>) {
         ui.radio_value(&mut v.weights, RsmSampleWeights::Paper, "ξ₁² (paper)");
     });
     ui.add(egui::Slider::new(&mut v.intensity, 0.0..=1000.0).logarithmic(true).text("intensity"));
-    if v != **settings {
-        **settings = v;
-    }
+    commit(v, settings);
 }
 
 /// The widgets of a camera's [`DrmSettings`]; each range is the field's valid range.
@@ -246,9 +276,7 @@ pub fn drm_ui(ui: &mut egui::Ui, settings: &mut Mut<DrmSettings>) {
     });
     ui.checkbox(&mut v.mip_mapped, "mip-mapped photons (§5, no flashing)");
     ui.add(egui::Slider::new(&mut v.intensity, 0.0..=1000.0).logarithmic(true).text("intensity"));
-    if v != **settings {
-        **settings = v;
-    }
+    commit(v, settings);
 }
 
 fn volume_ui(ui: &mut egui::Ui, label: &str, volume: &mut Mut<RadianceHintsVolume>, transform: &GlobalTransform) {
@@ -326,7 +354,37 @@ fn volume_ui(ui: &mut egui::Ui, label: &str, volume: &mut Mut<RadianceHintsVolum
         running.hint_count(),
         running.memory_bytes() as f64 / (1024.0 * 1024.0)
     ));
-    if v != **volume {
-        **volume = v;
+    commit(v, volume);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn committing_unchanged_values_changes_nothing() {
+        // Opening the panel must not rewrite a value set in code: committing an identical copy leaves the
+        // component untouched (no change detection), so the plugin redoes nothing.
+        let mut world = World::new();
+        let entity = world.spawn(RsmGatherSettings { samples: 77, ..default() }).id();
+        world.clear_trackers();
+        let edit = |samples: u32, world: &mut World| {
+            world
+                .run_system_cached_with(
+                    |In(samples): In<u32>, mut q: Query<&mut RsmGatherSettings>| {
+                        let mut settings = q.single_mut().unwrap();
+                        let edited = RsmGatherSettings { samples, ..(*settings).clone() };
+                        commit(edited, &mut settings);
+                    },
+                    samples,
+                )
+                .unwrap();
+            let changed = world.query_filtered::<Entity, Changed<RsmGatherSettings>>().iter(world).count();
+            world.clear_trackers();
+            changed
+        };
+        assert_eq!(edit(77, &mut world), 0);
+        assert_eq!(edit(78, &mut world), 1);
+        assert_eq!(world.get::<RsmGatherSettings>(entity).unwrap().samples, 78);
     }
 }
