@@ -13,43 +13,42 @@ use std::process::ExitCode;
 use bevy_diffuse_gi::hdr_image::HdrImage;
 use bevy_diffuse_gi::metrics;
 
-const USAGE: &str = "usage: compare A.exr REFERENCE.exr [--diff OUT.png] [--scale S]";
+/// The command line.
+#[derive(clap::Parser)]
+#[command(name = "compare", about = "Compares a linear EXR with a reference (shared/METRICS.md) and writes a difference PNG.")]
+struct Cli {
+    /// The method's image
+    image: PathBuf,
+    /// The ground truth
+    reference: PathBuf,
+    /// Where the false-colour difference PNG goes [default: IMAGE.diff.png]
+    #[arg(long, value_name = "OUT.png")]
+    diff: Option<PathBuf>,
+    /// |a − r| / mean(r) that maps to red; positive
+    #[arg(long, value_name = "S", default_value_t = 1.0, value_parser = positive)]
+    scale: f32,
+}
+
+fn positive(text: &str) -> Result<f32, String> {
+    text.parse::<f32>().ok().filter(|s| *s > 0.0 && s.is_finite()).ok_or_else(|| format!("`{text}` is not a positive number"))
+}
 
 fn main() -> ExitCode {
     match run() {
         Ok(()) => ExitCode::SUCCESS,
         Err(message) => {
             eprintln!("compare: {message}");
-            ExitCode::from(2)
+            ExitCode::FAILURE
         }
     }
 }
 
 fn run() -> Result<(), String> {
-    let mut args = std::env::args().skip(1);
-    let mut files = Vec::new();
-    let mut diff = None;
-    let mut scale = 1.0f32;
-    while let Some(arg) = args.next() {
-        match arg.as_str() {
-            "--diff" => diff = Some(PathBuf::from(args.next().ok_or("--diff needs a path")?)),
-            "--scale" => {
-                let text = args.next().ok_or("--scale needs a value")?;
-                scale = text.parse().map_err(|_| format!("--scale: `{text}` is not a number"))?;
-                if !(scale > 0.0 && scale.is_finite()) {
-                    return Err(format!("--scale must be positive, got {text}"));
-                }
-            }
-            "--help" | "-h" => return Err(USAGE.into()),
-            other if other.starts_with("--") => return Err(format!("unknown flag `{other}`\n{USAGE}")),
-            file => files.push(PathBuf::from(file)),
-        }
-    }
-    let [a_path, r_path] = files.as_slice() else {
-        return Err(format!("expected two images, got {}\n{USAGE}", files.len()));
-    };
-    let a = HdrImage::read(a_path).map_err(|e| e.to_string())?;
-    let r = HdrImage::read(r_path).map_err(|e| e.to_string())?;
+    use clap::Parser;
+    // Bad flags: clap's message and status 2; --help: status 0.
+    let Cli { image: a_path, reference: r_path, diff, scale } = Cli::try_parse().unwrap_or_else(|e| e.exit());
+    let a = HdrImage::read(&a_path).map_err(|e| e.to_string())?;
+    let r = HdrImage::read(&r_path).map_err(|e| e.to_string())?;
 
     #[cfg(feature = "flip")]
     let m = metrics::compare_with_flip(&a, &r, 1.0).map_err(|e| e.to_string())?;
@@ -67,7 +66,7 @@ fn run() -> Result<(), String> {
         None => println!("mean FLIP        (build with --features flip)"),
     }
 
-    let diff_path = diff.unwrap_or_else(|| bevy_diffuse_gi::headless::sibling(a_path, "diff", "png"));
+    let diff_path = diff.unwrap_or_else(|| bevy_diffuse_gi::headless::sibling(&a_path, "diff", "png"));
     let picture = metrics::difference_image(&a, &r, scale).map_err(|e| e.to_string())?;
     if let Some(parent) = diff_path.parent().filter(|p| !p.as_os_str().is_empty()) {
         std::fs::create_dir_all(parent).map_err(|e| format!("{}: {e}", parent.display()))?;

@@ -27,8 +27,6 @@ use bevy_diffuse_gi::scene::{SceneSnapshot, SceneSnapshotPlugin, SnapshotTimings
 use bevy_diffuse_gi::scenes::StandardScene;
 
 const SECTIONS: &[&str] = &["cost", "triangles", "snapshot", "accuracy", "stability"];
-const USAGE: &str =
-    "usage: dynamic_report [--section cost|triangles|snapshot|accuracy|stability]... [--rounds N] [--docs FILE.md]";
 /// Frames of a timed run and the intervals at its end that the medians use.
 const TIMED_RUN: u32 = 24;
 const TIMED_FRAMES: usize = 12;
@@ -45,7 +43,7 @@ fn main() -> ExitCode {
 }
 
 fn run() -> Result<(), String> {
-    let args = common::parse_report_args(SECTIONS, USAGE)?;
+    let args = common::parse_report_args("dynamic_report", SECTIONS);
     if std::env::var_os("WGPU_BACKEND").is_none() {
         // SAFETY: set before any render thread exists.
         unsafe { std::env::set_var("WGPU_BACKEND", "vulkan") };

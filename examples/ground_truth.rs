@@ -14,7 +14,7 @@
 use std::process::ExitCode;
 
 use bevy_diffuse_gi::hdr_image::HdrImage;
-use bevy_diffuse_gi::headless::{self, HeadlessMethod, parse_args, sibling};
+use bevy_diffuse_gi::headless::{self, HeadlessMethod, sibling};
 use bevy_diffuse_gi::metrics;
 use serde_json::json;
 
@@ -23,7 +23,7 @@ fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(message) => {
             eprintln!("ground_truth: {message}");
-            ExitCode::from(2)
+            ExitCode::FAILURE
         }
     }
 }
@@ -34,19 +34,23 @@ fn average(images: &[&HdrImage]) -> Result<HdrImage, String> {
     HdrImage::weighted_sum(&weighted).map_err(|e| e.to_string())
 }
 
+/// The ground-truth tool's command line: every flag of the headless renderer plus `--seeds`.
+#[derive(clap::Parser)]
+#[command(name = "ground_truth", about = "Renders a path-traced ground truth as the average of several seeds.")]
+struct Cli {
+    /// Independent seeds to average, 2..=1024 (from --seed on)
+    #[arg(long, value_name = "N", default_value_t = 4, value_parser = clap::value_parser!(u64).range(2..=1024))]
+    seeds: u64,
+    #[command(flatten)]
+    headless: headless::HeadlessArgs,
+}
+
 fn run() -> Result<(), String> {
-    let mut args: Vec<String> = std::env::args().skip(1).collect();
-    let mut seeds = 4u64;
-    if let Some(i) = args.iter().position(|a| a == "--seeds") {
-        let text = args.get(i + 1).ok_or("--seeds needs a value")?.clone();
-        seeds = text
-            .parse()
-            .ok()
-            .filter(|n| (2..=1024).contains(n))
-            .ok_or_else(|| format!("--seeds: `{text}` is not a number in 2..=1024"))?;
-        args.drain(i..i + 2);
-    }
-    let mut options = parse_args(args.iter().map(String::as_str))?;
+    use clap::Parser;
+    // Bad flags: clap's message and status 2; --help: the flags and status 0.
+    let cli = Cli::try_parse().unwrap_or_else(|e| e.exit());
+    let seeds = cli.seeds;
+    let mut options = cli.headless.into_options()?;
     options.method = HeadlessMethod::Reference;
     let first_seed = options.seed;
 

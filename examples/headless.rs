@@ -1,7 +1,7 @@
 //! Renders a standard scene with no window and writes a linear float EXR plus a JSON sidecar.
 //!
 //! `cargo run --release --example headless -- --scene cornell --method reference --spp 256 --out out/c.exr`
-//! Run with `--help` for every flag.
+//! Run with `--help` for every flag, its unit and its default.
 
 use std::process::ExitCode;
 
@@ -9,13 +9,8 @@ use bevy_diffuse_gi::headless::{parse_args, run_and_write};
 
 fn main() -> ExitCode {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let options = match parse_args(args.iter().map(String::as_str)) {
-        Ok(options) => options,
-        Err(message) => {
-            eprintln!("headless: {message}");
-            return ExitCode::from(2);
-        }
-    };
+    // Bad flags: clap's message and status 2; --help: the flags and status 0.
+    let options = parse_args(args.iter().map(String::as_str)).unwrap_or_else(|e| e.exit());
     match run_and_write(&options) {
         Ok(report) => {
             println!("wrote {} and {}", options.out.display(), options.out.with_extension("json").display());

@@ -34,8 +34,6 @@ use bevy_diffuse_gi::scenes::StandardScene;
 use bevy_diffuse_gi::vpl::VplSettings;
 
 const SECTIONS: &[&str] = &["accuracy", "near_light", "flashing", "timing", "equal_time", "images"];
-const USAGE: &str = "usage: one_bounce_report [--section accuracy|near_light|flashing|timing|equal_time|images]... \
-                     [--rounds N] [--docs FILE.md]";
 
 /// Frames of an accuracy render (the one-bounce methods have no temporal accumulation; Radiance Hints
 /// and VPLs settle over these).
@@ -57,7 +55,7 @@ fn main() -> ExitCode {
 }
 
 fn run() -> Result<(), String> {
-    let args = common::parse_report_args(SECTIONS, USAGE)?;
+    let args = common::parse_report_args("one_bounce_report", SECTIONS);
     if std::env::var_os("WGPU_BACKEND").is_none() {
         // SAFETY: set before any render thread exists.
         unsafe { std::env::set_var("WGPU_BACKEND", "vulkan") };

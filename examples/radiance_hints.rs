@@ -20,17 +20,7 @@ use bevy_diffuse_gi::prelude::*;
 use bevy_diffuse_gi::scenes::{SceneStatus, StandardScene, StandardScenesPlugin, cornell, mesh_bounds, spawn_standard_scene};
 
 fn main() -> AppExit {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let scene = match args.iter().position(|a| a == "--scene").and_then(|i| args.get(i + 1)) {
-        Some(name) => match StandardScene::parse(name) {
-            Ok(scene) => scene,
-            Err(message) => {
-                eprintln!("radiance_hints: {message}");
-                return AppExit::error();
-            }
-        },
-        None => StandardScene::Cornell,
-    };
+    let scene = common::example_scene("radiance_hints", "Radiance Hints on the Cornell box (or --scene), tuned live in a window.");
     if std::env::var_os("DISPLAY").is_none() && std::env::var_os("WAYLAND_DISPLAY").is_none() {
         return common::render_headless("radiance_hints", scene, GiMethod::RadianceHints);
     }

@@ -32,8 +32,6 @@ use bevy_diffuse_gi::scenes::StandardScene;
 use bevy_diffuse_gi::sh::ShOrder;
 
 const SECTIONS: &[&str] = &["presets", "scale", "reconstruction", "bounces", "ablation", "cellar", "tradeoff", "timing", "images"];
-const USAGE: &str = "usage: rh_report [--section presets|scale|reconstruction|bounces|ablation|cellar|tradeoff|timing|images]... \
-                     [--rounds N] [--docs FILE.md]";
 
 /// Static frames rendered before the image is kept: enough for the volume to finish refining, so the last
 /// ones time the per-frame cost of a still scene.
@@ -56,7 +54,7 @@ fn main() -> ExitCode {
 
 
 fn run() -> Result<(), String> {
-    let args = common::parse_report_args(SECTIONS, USAGE)?;
+    let args = common::parse_report_args("rh_report", SECTIONS);
     if std::env::var_os("WGPU_BACKEND").is_none() {
         // SAFETY: set before any render thread exists.
         unsafe { std::env::set_var("WGPU_BACKEND", "vulkan") };

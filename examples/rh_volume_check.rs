@@ -24,22 +24,37 @@ fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("rh_volume_check: {e}");
-            ExitCode::from(2)
+            ExitCode::FAILURE
         }
     }
 }
 
+/// The command line.
+#[derive(clap::Parser)]
+#[command(name = "rh_volume_check", about = "Checks a dumped Radiance Hints volume (--dump-volume) against the path tracer at the hints.")]
+struct Cli {
+    /// The volume dump written by `headless --dump-volume`
+    volume: std::path::PathBuf,
+    /// Bounces of the traced radiance at the hints
+    #[arg(long, value_name = "N", default_value_t = 2)]
+    bounces: u32,
+    /// Check every S-th hint along each axis
+    #[arg(long, value_name = "S", default_value_t = 2)]
+    stride: u32,
+    /// The scene the volume was made in
+    #[arg(long, default_value = "cornell", value_parser = ["cornell", "cellar"])]
+    scene: String,
+    /// List every checked hint
+    #[arg(long)]
+    list: bool,
+}
+
 fn run() -> Result<(), String> {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let path = args.first().ok_or("usage: rh_volume_check VOLUME.json [--bounces N] [--stride S] [--scene cornell|cellar] [--list]")?;
-    let flag = |name: &str, default: u32| -> Result<u32, String> {
-        match args.iter().position(|a| a == name) {
-            Some(i) => args.get(i + 1).and_then(|v| v.parse().ok()).ok_or(format!("{name} needs a number")),
-            None => Ok(default),
-        }
-    };
-    let bounces = flag("--bounces", 2)?;
-    let stride = flag("--stride", 2)?.max(1);
+    use clap::Parser;
+    let cli = Cli::try_parse().unwrap_or_else(|e| e.exit());
+    let path = &cli.volume.display().to_string();
+    let bounces = cli.bounces;
+    let stride = cli.stride.max(1);
     let text = std::fs::read_to_string(path).map_err(|e| format!("{path}: {e}"))?;
     let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| e.to_string())?;
     let res = UVec3::from_array(serde_json::from_value(v["resolution"].clone()).map_err(|e| e.to_string())?);
@@ -50,12 +65,8 @@ fn run() -> Result<(), String> {
     let sh: Vec<f32> = serde_json::from_value(v["sh"].clone()).map_err(|e| e.to_string())?;
     let validity: Vec<f32> = serde_json::from_value(v["albedo_validity"].clone()).map_err(|e| e.to_string())?;
 
-    let scene = match args.iter().position(|a| a == "--scene").and_then(|i| args.get(i + 1)).map(String::as_str) {
-        None | Some("cornell") => cornell_snapshot(),
-        Some("cellar") => cellar_snapshot(),
-        Some(other) => return Err(format!("unknown scene {other}")),
-    };
-    let list = args.iter().any(|a| a == "--list");
+    let scene = if cli.scene == "cellar" { cellar_snapshot() } else { cornell_snapshot() };
+    let list = cli.list;
     let settings = ReferenceSettings {
         max_bounces: Some(bounces.max(1)),
         seed: 7,

@@ -6,37 +6,37 @@ use std::process::ExitCode;
 
 use bevy_diffuse_gi::hdr_image::HdrImage;
 
-const USAGE: &str = "usage: tonemap IN.exr OUT.png [--scale S]   (S > 0, default 1)";
+/// The command line.
+#[derive(clap::Parser)]
+#[command(name = "tonemap", about = "Writes a viewable PNG of a linear EXR: scale · rgb, Reinhard, then sRGB.")]
+struct Cli {
+    /// The linear EXR to read
+    input: std::path::PathBuf,
+    /// The PNG to write
+    output: std::path::PathBuf,
+    /// Multiplies the linear values first; positive
+    #[arg(long, value_name = "S", default_value_t = 1.0, value_parser = positive)]
+    scale: f32,
+}
+
+fn positive(text: &str) -> Result<f32, String> {
+    text.parse::<f32>().ok().filter(|s| *s > 0.0 && s.is_finite()).ok_or_else(|| format!("`{text}` is not a positive number"))
+}
 
 fn main() -> ExitCode {
     match run() {
         Ok(()) => ExitCode::SUCCESS,
         Err(message) => {
             eprintln!("tonemap: {message}");
-            ExitCode::from(2)
+            ExitCode::FAILURE
         }
     }
 }
 
 fn run() -> Result<(), String> {
-    let mut args = std::env::args().skip(1);
-    let mut files = Vec::new();
-    let mut scale = 1.0f32;
-    while let Some(arg) = args.next() {
-        if arg == "--scale" {
-            let text = args.next().ok_or("--scale needs a value")?;
-            scale = text
-                .parse()
-                .ok()
-                .filter(|s: &f32| *s > 0.0 && s.is_finite())
-                .ok_or_else(|| format!("--scale: `{text}` is not a positive number"))?;
-        } else {
-            files.push(arg);
-        }
-    }
-    let [input, output] = files.as_slice() else {
-        return Err(USAGE.into());
-    };
-    let image = HdrImage::read(input).map_err(|e| e.to_string())?;
-    image.write_png_tonemapped(output, scale).map_err(|e| e.to_string())
+    use clap::Parser;
+    // Bad flags: clap's message and status 2; --help: status 0.
+    let Cli { input, output, scale } = Cli::try_parse().unwrap_or_else(|e| e.exit());
+    let image = HdrImage::read(&input).map_err(|e| e.to_string())?;
+    image.write_png_tonemapped(&output, scale).map_err(|e| e.to_string())
 }

@@ -31,7 +31,6 @@ use bevy_diffuse_gi::scenes::StandardScene;
 use bevy_diffuse_gi::vpl::VplSettings;
 
 const SECTIONS: &[&str] = &["accuracy", "corners", "timing", "equal_time"];
-const USAGE: &str = "usage: vpl_report [--section accuracy|corners|timing|equal_time]... [--rounds N] [--docs FILE.md]";
 
 /// Frames of an accuracy render (the VPL method has no temporal accumulation; RH refines over these).
 const STILL_FRAMES: u32 = 32;
@@ -51,7 +50,7 @@ fn main() -> ExitCode {
 
 
 fn run() -> Result<(), String> {
-    let args = common::parse_report_args(SECTIONS, USAGE)?;
+    let args = common::parse_report_args("vpl_report", SECTIONS);
     if std::env::var_os("WGPU_BACKEND").is_none() {
         // SAFETY: set before any render thread exists.
         unsafe { std::env::set_var("WGPU_BACKEND", "vulkan") };

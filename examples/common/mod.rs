@@ -38,6 +38,22 @@ pub fn render_headless(tool: &str, scene: StandardScene, method: GiMethod) -> Ap
     }
 }
 
+/// The command line of a windowed example: the scene to show.
+#[derive(clap::Parser)]
+struct ExampleCli {
+    /// cornell, cellar, sponza_like, dynamic, emissive_panel, open_field, near_light, or a glTF 2.0 file
+    #[arg(long, value_name = "NAME|PATH.glb", default_value = "cornell", value_parser = StandardScene::parse)]
+    scene: StandardScene,
+}
+
+/// The scene a windowed example `tool` is asked to show (`--scene`, default `cornell`). `--help`
+/// exits with status 0, bad input with clap's message and status 2.
+pub fn example_scene(tool: &'static str, about: &'static str) -> StandardScene {
+    use clap::{CommandFactory, FromArgMatches};
+    let matches = ExampleCli::command().name(tool).about(about).get_matches();
+    ExampleCli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit()).scene
+}
+
 /// The command line of a report example.
 pub struct ReportArgs {
     pub sections: Vec<String>,
@@ -45,41 +61,36 @@ pub struct ReportArgs {
     pub docs: Option<PathBuf>,
 }
 
-/// Parses `[--section NAME]... [--rounds N] [--docs FILE.md]` (default: every section, 3 rounds);
-/// `--help` prints `usage` and exits with status 0.
-pub fn parse_report_args(sections: &[&str], usage: &str) -> Result<ReportArgs, String> {
-    let mut args = ReportArgs { sections: Vec::new(), rounds: 3, docs: None };
-    let mut it = std::env::args().skip(1);
-    while let Some(flag) = it.next() {
-        let mut value = || it.next().ok_or_else(|| format!("{flag} needs a value"));
-        match flag.as_str() {
-            "--section" => {
-                let name = value()?;
-                if !sections.contains(&name.as_str()) {
-                    return Err(format!("--section: unknown section `{name}`; {usage}"));
-                }
-                args.sections.push(name);
-            }
-            "--rounds" => {
-                let text = value()?;
-                args.rounds = text
-                    .parse()
-                    .ok()
-                    .filter(|r| (1..=20).contains(r))
-                    .ok_or_else(|| format!("--rounds: `{text}` is not 1..=20"))?;
-            }
-            "--docs" => args.docs = Some(PathBuf::from(value()?)),
-            "--help" | "-h" => {
-                println!("{usage}");
-                std::process::exit(0);
-            }
-            other => return Err(format!("unknown flag `{other}`; {usage}")),
-        }
+/// The flags every report example takes (clap derive).
+#[derive(clap::Parser)]
+struct ReportCli {
+    /// A section to generate (repeat for several) [default: all]
+    #[arg(long = "section", value_name = "NAME")]
+    sections: Vec<String>,
+    /// Rounds of the alternating timing runs, 1..=20
+    #[arg(long, value_name = "N", default_value_t = 3, value_parser = clap::value_parser!(u64).range(1..=20))]
+    rounds: u64,
+    /// Also replace each section's table between its markers in this Markdown file
+    #[arg(long, value_name = "FILE.md")]
+    docs: Option<PathBuf>,
+}
+
+/// Parses `[--section NAME]... [--rounds N] [--docs FILE.md]` for the report `tool` whose sections are
+/// `sections` (default: every one; 3 rounds). `--help` lists them and exits with status 0; bad input
+/// prints clap's message and exits with status 2.
+pub fn parse_report_args(tool: &'static str, sections: &[&'static str]) -> ReportArgs {
+    use clap::{CommandFactory, FromArgMatches};
+    let command = ReportCli::command()
+        .name(tool)
+        .about(format!("Measures and writes the tables of its docs page. Sections: {}.", sections.join(", ")))
+        .mut_arg("sections", |arg| arg.value_parser(clap::builder::PossibleValuesParser::new(sections.to_vec())));
+    let matches = command.get_matches();
+    let cli = ReportCli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit());
+    ReportArgs {
+        sections: if cli.sections.is_empty() { sections.iter().map(|s| s.to_string()).collect() } else { cli.sections },
+        rounds: cli.rounds as usize,
+        docs: cli.docs,
     }
-    if args.sections.is_empty() {
-        args.sections = sections.iter().map(|s| s.to_string()).collect();
-    }
-    Ok(args)
 }
 
 /// Replaces the text between `<!-- {tool}:{name} -->` and `<!-- /{tool}:{name} -->` in `path`.

@@ -11,17 +11,7 @@ use bevy_diffuse_gi::scenes::{SceneStatus, StandardScene, StandardScenesPlugin, 
 /// Runs the example `tool` with `method` as the camera's method (`--scene NAME` picks another scene);
 /// without a display, renders one frame headless instead.
 pub fn run(tool: &'static str, title: &'static str, method: GiMethod) -> AppExit {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let scene = match args.iter().position(|a| a == "--scene").and_then(|i| args.get(i + 1)) {
-        Some(name) => match StandardScene::parse(name) {
-            Ok(scene) => scene,
-            Err(message) => {
-                eprintln!("{tool}: {message}");
-                return AppExit::error();
-            }
-        },
-        None => StandardScene::Cornell,
-    };
+    let scene = crate::common::example_scene(tool, title);
     if std::env::var_os("DISPLAY").is_none() && std::env::var_os("WAYLAND_DISPLAY").is_none() {
         return crate::common::render_headless(tool, scene, method);
     }

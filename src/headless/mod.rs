@@ -44,7 +44,7 @@ use crate::radiance_hints::RadianceHintsVolume;
 use crate::scene::SceneSnapshot;
 use crate::scenes::{SceneCamera, SceneStatus, StandardScene, StandardScenesPlugin, spawn_standard_scene};
 
-pub use options::{HeadlessMethod, HeadlessOptions, USAGE, parse_args};
+pub use options::{HeadlessArgs, HeadlessCli, HeadlessMethod, HeadlessOptions, parse_args};
 
 /// Frames to wait for a glTF scene to load before giving up.
 const MAX_LOADING_FRAMES: u32 = 2000;

@@ -2,7 +2,7 @@
 
 use std::path::PathBuf;
 
-use bevy::math::{UVec2, Vec3};
+use bevy::math::{UVec2, UVec3, Vec3};
 use bevy::prelude::default;
 
 use crate::camera::{GiMethod, GiOutput};
@@ -173,368 +173,528 @@ impl Default for HeadlessOptions {
     }
 }
 
-/// Usage text of the `headless` example.
-pub const USAGE: &str = "\
-usage: headless [--scene cornell|PATH.glb] [--size WxH] [--frames N] [--out FILE.exr]
-                [--method none|reference|rh|vpl|rsm|drm] [--indirect-only] [--spp N] [--seed S]
-                [--max-bounces N] [--ev100 EV] [--burley-direct] [--pixel-centers]
-                [--preset low|medium|high] [--rh-resolution N|XxYxZ] [--rh-longest N]
-                [--rh-cell M] [--rh-hints N] [--rh-max-hints N] [--rh-cascade LEVELS]
-                [--rh-cascade-extent XxYxZ] [--rh-order 2|3]
-                [--rh-samples N] [--rh-bounces N] [--rh-secondary N] [--rh-rmax M]
-                [--rh-coverage C] [--rh-jitter J] [--rh-blend A] [--rh-threshold T]
-                [--rh-albedo on|off] [--rh-depth-occlusion STEPS] [--rh-reconstruction N]
-                [--rh-irradiance linear|nonlinear] [--rh-near-field CELLS]
-                [--rh-visibility voxels|none] [--rh-secondary-transport voxel|paper] [--rh-refinement N]
-                [--dump-volume FILE.json]
-                [--vpl-paths N] [--vpl-bounces N] [--vpl-seed S] [--vpl-bound B] [--vpl-ism-resolution N]
-                [--vpl-ism-points N] [--vpl-ism-bias F] [--ssbc-steps N] [--ssbc-solid-angle SR]
-                [--ssbc-levels N] [--ssbc-blur on|off]
-                [--rsm-samples N] [--rsm-radius R] [--rsm-weights paper|density]
-                [--drm-samples N] [--drm-solid-angle 11|14|15]
-                [--drm-mip on|off]
-                [--half-res|--full-res] [--gi-output composite|irradiance-volume] [--debug-view VIEW]
-                [--animate-light] [--animate-meshes N] [--pose-frame K] [--stop-animation-at K]
-                [--extra-triangles N] [--switch-method FRAMES:rh|vpl|rsm|drm]
-
-  --scene          cornell, cellar, sponza_like, dynamic or a glTF 2.0 file (default cornell)
-  --size           image size in pixels, 1..=8192 each                  (default 256x256)
-  --frames         frames to render once the scene shows, before the image is kept (default 8)
-  --out            the linear float EXR to write; FILE.json goes beside it (default out/render.exr)
-  --method         none = Bevy's direct light; reference = CPU path tracer;
-                   rh = Radiance Hints over a volume fitted to the scene;
-                   vpl = VPLs with imperfect shadow maps and SSBC;
-                   rsm = the RSM gather; drm = Direct Radiance Mapping      (default none)
-  --indirect-only  write only the indirect light the method adds
-  --spp            path-tracer samples per pixel, 1..=1048576            (default 2048)
-  --seed           path-tracer random seed                               (default 0)
-  --max-bounces    path tracer: keep indirect light of at most N bounces (default all)
-  --ev100          exposure override in EV100                            (default: the scene's)
-  --burley-direct  path tracer: shade direct light with Bevy's Burley lobe (for the direct check)
-  --pixel-centers  path tracer: one ray through each pixel centre, no pixel filter (for the direct check)
-  --preset         the method's preset (RadianceHintsVolume, VplSettings, RsmGatherSettings or
-                   DrmSettings)                                          (default medium)
-  --rh-*           override one RadianceHintsVolume field (see its docs); the plugin clamps
-                   out-of-range values with a warning. --rh-depth-occlusion 0 turns §8 off.
-                   The grid: --rh-resolution (fixed counts), --rh-longest N (fixed cubic cells, N
-                   along the longest side), --rh-cell/--rh-hints/--rh-max-hints (the adaptive rule's
-                   largest cell in m, small-room hints, most hints), --rh-cascade LEVELS and
-                   --rh-cascade-extent XxYxZ (a camera-centred cascade instead of one fitted volume)
-  --vpl-*          override one VplSettings field: paths, bounces, seed, bound (b in 1/m², 0 = automatic),
-                   ism-resolution (texels), ism-points, ism-bias (fraction of the distance)
-  --ssbc-*         override an SSBC field of VplSettings: steps (0 = clamped only), solid-angle (sr),
-                   levels, blur (on|off)
-  --rsm-*          override one RsmGatherSettings field: samples (per pixel and light), radius (fraction
-                   of the RSM's side), weights (paper: ξ₁², density: ξ₁)
-  --drm-*          override one DrmSettings field: samples (photons per axis of each light face, M = N²),
-                   solid-angle (the paper's Eq. 11, 14 or 15), mip (on|off: mip-mapped photons)
-  --half-res       compute the bounced light at half resolution (the default)
-  --full-res       compute the bounced light at full resolution
-  --gi-output      composite (per pixel, default) or irradiance-volume (Bevy's light probe)
-  --debug-view     indirect, irradiance, hint-grid, rsm-flux, rsm-normal, rsm-position,
-                   vpl-clamped, vpl-compensation or vpl-positions
-  --animate-light  dynamic scene: orbit its light one step per rendered frame; other scenes: move the
-                   GI lights on a 2 cm circle every frame (times the dynamic-light case)
-  --animate-meshes dynamic scene: move its first N objects (0..=10) one step per rendered frame
-  --pose-frame     dynamic scene: the pose frame to start at (default 0; the ground truth of a pose)
-  --stop-animation-at  dynamic scene: stop the motion at this pose frame
-  --extra-triangles    dynamic scene: add about N static triangles (spheres along the back wall)
-  --switch-method  after FRAMES of the --frames, switch the camera to the given GI method";
-
-fn value<'a>(flag: &str, args: &mut impl Iterator<Item = &'a str>) -> Result<&'a str, String> {
-    args.next().ok_or_else(|| format!("{flag} needs a value"))
+/// The headless renderer's command line (clap derive). `--help` lists every flag with its unit and default;
+/// [`HeadlessArgs::into_options`] applies `--preset` first, then every override, and checks the
+/// combinations. Tools that add flags of their own flatten it (`ground_truth`).
+#[derive(clap::Args, Clone, Debug)]
+pub struct HeadlessArgs {
+    /// cornell, cellar, sponza_like, dynamic, emissive_panel, open_field, near_light, or a glTF 2.0 file
+    #[arg(long, value_name = "NAME|PATH.glb", default_value = "cornell", value_parser = StandardScene::parse)]
+    pub scene: StandardScene,
+    /// Image size in pixels, 1..=8192 each
+    #[arg(long, value_name = "WxH", default_value = "256x256", value_parser = parse_size)]
+    pub size: UVec2,
+    /// Frames rendered once the scene shows, before the image is kept
+    #[arg(long, value_name = "N", default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=100_000))]
+    pub frames: u32,
+    /// The linear float EXR to write; FILE.json goes beside it [default: out/SCENE_METHOD.exr]
+    #[arg(long, value_name = "FILE.exr", value_parser = parse_exr_path)]
+    pub out: Option<PathBuf>,
+    /// none = Bevy's direct light; reference = the CPU path tracer; rh = Radiance Hints over a volume
+    /// fitted to the scene; vpl = VPLs with imperfect shadow maps and SSBC; rsm = the RSM gather;
+    /// drm = Direct Radiance Mapping
+    #[arg(long, value_name = "METHOD", default_value = "none", value_parser = HeadlessMethod::parse)]
+    pub method: HeadlessMethod,
+    /// Write only the indirect light the method adds
+    #[arg(long)]
+    pub indirect_only: bool,
+    /// Path-tracer samples per pixel, 1..=1048576
+    #[arg(long, value_name = "N", default_value_t = 2048, value_parser = clap::value_parser!(u32).range(1..=1 << 20))]
+    pub spp: u32,
+    /// Path-tracer random seed
+    #[arg(long, value_name = "S", default_value_t = 0)]
+    pub seed: u64,
+    /// Path tracer: keep indirect light of at most N bounces, 1..=1000 [default: all]
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..=1000))]
+    pub max_bounces: Option<u32>,
+    /// Exposure override in EV100, -64..=64 [default: the scene's]
+    #[arg(long, value_name = "EV", allow_negative_numbers = true, value_parser = parse_ev100)]
+    pub ev100: Option<f32>,
+    /// Path tracer: shade direct light with Bevy's Burley lobe (for the direct check)
+    #[arg(long)]
+    pub burley_direct: bool,
+    /// Path tracer: one ray through each pixel centre, no pixel filter (for the direct check)
+    #[arg(long)]
+    pub pixel_centers: bool,
+    /// The method's preset: RadianceHintsVolume, VplSettings, RsmGatherSettings or DrmSettings
+    #[arg(long, value_name = "PRESET", default_value = "medium", value_parser = ["low", "medium", "high"])]
+    pub preset: String,
+    /// Compute the bounced light at half resolution (the default)
+    #[arg(long, conflicts_with = "full_res")]
+    pub half_res: bool,
+    /// Compute the bounced light at full resolution
+    #[arg(long)]
+    pub full_res: bool,
+    /// composite (per pixel) or irradiance-volume (Bevy's light probe)
+    #[arg(long, value_name = "OUTPUT", default_value = "composite", value_parser = ["composite", "irradiance-volume"])]
+    pub gi_output: String,
+    /// indirect, irradiance, hint-grid, rsm-flux, rsm-normal, rsm-position, vpl-clamped,
+    /// vpl-compensation or vpl-positions [default: the lit image; --indirect-only: indirect]
+    #[arg(long, value_name = "VIEW", value_parser = [
+        "indirect", "irradiance", "hint-grid", "rsm-flux", "rsm-normal", "rsm-position", "vpl-clamped",
+        "vpl-compensation", "vpl-positions",
+    ])]
+    pub debug_view: Option<String>,
+    /// dynamic scene: orbit its light one step per rendered frame; other scenes: move the GI lights on a
+    /// 2 cm circle every frame (times the dynamic-light case)
+    #[arg(long)]
+    pub animate_light: bool,
+    /// dynamic scene: move its first N objects one step per rendered frame, 0..=10
+    #[arg(long, value_name = "N", default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=10))]
+    pub animate_meshes: u32,
+    /// dynamic scene: the pose frame to start at (the ground truth of a pose), 0..=1e6
+    #[arg(long, value_name = "K", default_value_t = 0.0, value_parser = parse_pose)]
+    pub pose_frame: f32,
+    /// dynamic scene: stop the motion at this pose frame, 0..=1e6
+    #[arg(long, value_name = "K", value_parser = parse_pose)]
+    pub stop_animation_at: Option<f32>,
+    /// dynamic scene: add about N static triangles (spheres along the back wall), 0..=5000000
+    #[arg(long, value_name = "N", default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=5_000_000))]
+    pub extra_triangles: u32,
+    /// After FRAMES of the --frames, switch the camera to the given GI method (rh, vpl, rsm or drm)
+    #[arg(long, value_name = "FRAMES:METHOD", value_parser = parse_switch)]
+    pub switch_method: Option<(u32, GiMethod)>,
+    // The methods' overrides last: each group's help heading then covers only its own flags.
+    #[command(flatten)]
+    pub rh: RhArgs,
+    #[command(flatten)]
+    pub vpl: VplArgs,
+    #[command(flatten)]
+    pub one_bounce: OneBounceArgs,
 }
 
-fn number<T>(flag: &str, text: &str, min: T, max: T) -> Result<T, String>
-where
-    T: std::str::FromStr + PartialOrd + std::fmt::Display + Copy,
-{
-    let v: T = text
-        .parse()
-        .map_err(|_| format!("{flag}: `{text}` is not a valid number"))?;
-    // Written so that NaN fails too.
-    if !(v >= min && v <= max) {
-        return Err(format!("{flag}: {v} is outside {min}..={max}"));
-    }
-    Ok(v)
+/// Radiance Hints overrides of [`HeadlessArgs`]: each sets one `RadianceHintsVolume` field after the
+/// preset; out-of-range values are passed on, and the plugin clamps them with one warning as it would a
+/// game's.
+#[derive(clap::Args, Clone, Debug, Default)]
+#[command(next_help_heading = "Radiance Hints (--method rh; each overrides one RadianceHintsVolume field)")]
+pub struct RhArgs {
+    /// Fixed hint counts, N or XxYxZ (no cell fitting)
+    #[arg(long, value_name = "N|XxYxZ", value_parser = parse_counts, conflicts_with_all = ["rh_longest", "rh_cell", "rh_hints", "rh_max_hints"])]
+    pub rh_resolution: Option<UVec3>,
+    /// Fixed cubic cells, N hints along the scene's longest side, 2..=128
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(2..=128), conflicts_with_all = ["rh_cell", "rh_hints", "rh_max_hints"])]
+    pub rh_longest: Option<u32>,
+    /// The adaptive grid's largest cell, metres [default: the preset's]
+    #[arg(long, value_name = "M")]
+    pub rh_cell: Option<f32>,
+    /// The adaptive grid's hints in a small room [default: the preset's]
+    #[arg(long, value_name = "N")]
+    pub rh_hints: Option<u32>,
+    /// The adaptive grid's most hints [default: the preset's]
+    #[arg(long, value_name = "N")]
+    pub rh_max_hints: Option<u32>,
+    /// A camera-centred cascade of LEVELS volumes (1..=6) instead of one volume fitted to the scene
+    #[arg(long, value_name = "LEVELS", value_parser = clap::value_parser!(u32).range(1..=6))]
+    pub rh_cascade: Option<u32>,
+    /// The cascade's innermost box, metres, XxYxZ [default: RadianceHintsCascade's; implies --rh-cascade 3]
+    #[arg(long, value_name = "XxYxZ", value_parser = parse_extent)]
+    pub rh_cascade_extent: Option<Vec3>,
+    /// Spherical-harmonics order, 2 or 3
+    #[arg(long, value_name = "2|3", value_parser = ["2", "3"])]
+    pub rh_order: Option<String>,
+    /// RSM samples per hint N_s
+    #[arg(long, value_name = "N")]
+    pub rh_samples: Option<u32>,
+    /// Extra bounces between hints
+    #[arg(long, value_name = "N")]
+    pub rh_bounces: Option<u32>,
+    /// Secondary samples per hint and bounce N_b
+    #[arg(long, value_name = "N")]
+    pub rh_secondary: Option<u32>,
+    /// r_max in metres (0 = automatic)
+    #[arg(long, value_name = "M")]
+    pub rh_rmax: Option<f32>,
+    /// RSM coverage c_RSM of directional lights, 0..1
+    #[arg(long, value_name = "C")]
+    pub rh_coverage: Option<f32>,
+    /// Jitter of the receiving points, cells
+    #[arg(long, value_name = "J")]
+    pub rh_jitter: Option<f32>,
+    /// Temporal blend factor
+    #[arg(long, value_name = "A")]
+    pub rh_blend: Option<f32>,
+    /// Bounce stop threshold
+    #[arg(long, value_name = "T")]
+    pub rh_threshold: Option<f32>,
+    /// Reconstruction samples per pixel N_RH
+    #[arg(long, value_name = "N")]
+    pub rh_reconstruction: Option<u32>,
+    /// Near-field occlusion reach in cell diagonals (0 = off)
+    #[arg(long, value_name = "CELLS")]
+    pub rh_near_field: Option<f32>,
+    /// Irradiance from the SH: linear (Eq. 7) or nonlinear (Hazel)
+    #[arg(long, value_parser = ["linear", "nonlinear"])]
+    pub rh_irradiance: Option<String>,
+    /// The albedo volume (coloured extra bounces): on or off
+    #[arg(long, value_name = "on|off", value_parser = parse_on_off)]
+    pub rh_albedo: Option<bool>,
+    /// §8 camera-depth occlusion with STEPS samples per path (0 = off)
+    #[arg(long, value_name = "STEPS")]
+    pub rh_depth_occlusion: Option<u32>,
+    /// First-bounce visibility: voxels or none
+    #[arg(long, value_parser = ["voxels", "none"])]
+    pub rh_visibility: Option<String>,
+    /// Secondary bounces' transport: voxel or paper
+    #[arg(long, value_parser = ["voxel", "paper"])]
+    pub rh_secondary_transport: Option<String>,
+    /// Refinement updates after a change
+    #[arg(long, value_name = "N")]
+    pub rh_refinement: Option<u32>,
+    /// Write the volume's field to this JSON file after the last frame
+    #[arg(long, value_name = "FILE.json")]
+    pub dump_volume: Option<PathBuf>,
 }
 
-/// `on` or `off`.
-fn on_off(flag: &str, text: &str) -> Result<bool, String> {
+/// VPL and SSBC overrides of [`HeadlessArgs`] (each sets one `VplSettings` field after the preset).
+#[derive(clap::Args, Clone, Debug, Default)]
+#[command(next_help_heading = "VPLs (--method vpl; each overrides one VplSettings field)")]
+pub struct VplArgs {
+    /// Light paths
+    #[arg(long, value_name = "N")]
+    pub vpl_paths: Option<u32>,
+    /// Most VPLs per path
+    #[arg(long, value_name = "N")]
+    pub vpl_bounces: Option<u32>,
+    /// Seed of the light paths
+    #[arg(long, value_name = "S")]
+    pub vpl_seed: Option<u32>,
+    /// Bound b of the clamped geometry term, 1/m² (0 = automatic)
+    #[arg(long, value_name = "B")]
+    pub vpl_bound: Option<f32>,
+    /// Imperfect shadow map side, texels
+    #[arg(long, value_name = "N")]
+    pub vpl_ism_resolution: Option<u32>,
+    /// Points per imperfect shadow map
+    #[arg(long, value_name = "N")]
+    pub vpl_ism_points: Option<u32>,
+    /// Shadow-map depth tolerance, fraction of the distance
+    #[arg(long, value_name = "F")]
+    pub vpl_ism_bias: Option<f32>,
+    /// SSBC steps (0 = the clamped gather alone)
+    #[arg(long, value_name = "N")]
+    pub ssbc_steps: Option<u32>,
+    /// SSBC refinement threshold, steradians
+    #[arg(long, value_name = "SR")]
+    pub ssbc_solid_angle: Option<f32>,
+    /// SSBC levels
+    #[arg(long, value_name = "N")]
+    pub ssbc_levels: Option<u32>,
+    /// SSBC blur: on or off
+    #[arg(long, value_name = "on|off", value_parser = parse_on_off)]
+    pub ssbc_blur: Option<bool>,
+}
+
+/// RSM gather and DRM overrides of [`HeadlessArgs`] (each sets one field after the preset).
+#[derive(clap::Args, Clone, Debug, Default)]
+#[command(next_help_heading = "One-bounce gathers (--method rsm|drm; each overrides one RsmGatherSettings or DrmSettings field)")]
+pub struct OneBounceArgs {
+    /// RSM gather: samples per pixel and light
+    #[arg(long, value_name = "N")]
+    pub rsm_samples: Option<u32>,
+    /// RSM gather: disk radius, fraction of the RSM's side
+    #[arg(long, value_name = "R")]
+    pub rsm_radius: Option<f32>,
+    /// RSM gather: sample weights, paper (ξ₁²) or density (ξ₁)
+    #[arg(long, value_parser = ["paper", "density"])]
+    pub rsm_weights: Option<String>,
+    /// DRM: photons per axis of each light face (M = N²)
+    #[arg(long, value_name = "N")]
+    pub drm_samples: Option<u32>,
+    /// DRM: the paper's solid-angle approximation, Eq. 11, 14 or 15
+    #[arg(long, value_name = "EQ", value_parser = ["11", "14", "15"])]
+    pub drm_solid_angle: Option<String>,
+    /// DRM: mip-mapped photons, on or off
+    #[arg(long, value_name = "on|off", value_parser = parse_on_off)]
+    pub drm_mip: Option<bool>,
+}
+
+/// The `headless` example's command line.
+#[derive(clap::Parser, Clone, Debug)]
+#[command(name = "headless", about = "Renders a standard scene or a glTF file with no window and writes a linear EXR and a JSON sidecar.")]
+pub struct HeadlessCli {
+    #[command(flatten)]
+    pub args: HeadlessArgs,
+}
+
+fn parse_size(text: &str) -> Result<UVec2, String> {
+    let (w, h) = text.split_once(['x', 'X']).ok_or_else(|| format!("`{text}` is not WIDTHxHEIGHT"))?;
+    let side = |t: &str| t.parse::<u32>().ok().filter(|v| (1..=8192).contains(v)).ok_or_else(|| format!("`{text}`: each side must be 1..=8192"));
+    Ok(UVec2::new(side(w)?, side(h)?))
+}
+
+fn parse_exr_path(text: &str) -> Result<PathBuf, String> {
+    if text.ends_with(".exr") { Ok(PathBuf::from(text)) } else { Err(format!("`{text}` must end in .exr")) }
+}
+
+fn parse_ev100(text: &str) -> Result<f32, String> {
+    text.parse::<f32>().ok().filter(|v| (-64.0..=64.0).contains(v)).ok_or_else(|| format!("`{text}` is not a number in -64..=64"))
+}
+
+fn parse_pose(text: &str) -> Result<f32, String> {
+    text.parse::<f32>().ok().filter(|v| (0.0..=1.0e6).contains(v)).ok_or_else(|| format!("`{text}` is not a number in 0..=1000000"))
+}
+
+fn parse_on_off(text: &str) -> Result<bool, String> {
     match text {
         "on" => Ok(true),
         "off" => Ok(false),
-        other => Err(format!("{flag}: `{other}` is not on or off")),
+        other => Err(format!("`{other}` is not on or off")),
     }
 }
 
-/// A number of any value (the plugin validates it, as it would a game's settings).
-fn any_number<T: std::str::FromStr>(flag: &str, text: &str) -> Result<T, String> {
-    text.parse().map_err(|_| format!("{flag}: `{text}` is not a valid number"))
+fn parse_counts(text: &str) -> Result<UVec3, String> {
+    let n = |t: &str| t.parse::<u32>().map_err(|_| format!("`{text}` is not N or XxYxZ"));
+    match text.split(['x', 'X']).collect::<Vec<_>>().as_slice() {
+        [a] => Ok(UVec3::splat(n(a)?)),
+        [x, y, z] => Ok(UVec3::new(n(x)?, n(y)?, n(z)?)),
+        _ => Err(format!("`{text}` is not N or XxYxZ")),
+    }
 }
 
-/// Parses the command line (without the program name). Errors name the flag and the problem.
-pub fn parse_args<'a>(args: impl IntoIterator<Item = &'a str>) -> Result<HeadlessOptions, String> {
-    let mut options = HeadlessOptions::default();
-    let mut out_given = false;
-    let mut args = args.into_iter();
-    while let Some(flag) = args.next() {
-        match flag {
-            "--scene" => options.scene = StandardScene::parse(value(flag, &mut args)?)?,
-            "--size" => {
-                let text = value(flag, &mut args)?;
-                let (w, h) = text
-                    .split_once(['x', 'X'])
-                    .ok_or_else(|| format!("--size: `{text}` is not WIDTHxHEIGHT"))?;
-                options.size = UVec2::new(number("--size", w, 1, 8192)?, number("--size", h, 1, 8192)?);
+fn parse_extent(text: &str) -> Result<Vec3, String> {
+    let parts: Vec<f32> =
+        text.split(['x', 'X']).map(|t| t.parse::<f32>().map_err(|_| format!("`{text}` is not XxYxZ"))).collect::<Result<_, _>>()?;
+    match parts[..] {
+        [x, y, z] => Ok(Vec3::new(x, y, z)),
+        _ => Err(format!("`{text}` is not XxYxZ")),
+    }
+}
+
+fn parse_switch(text: &str) -> Result<(u32, GiMethod), String> {
+    let (frames, method) = text.split_once(':').ok_or_else(|| format!("`{text}` is not FRAMES:METHOD"))?;
+    let frames = frames.parse::<u32>().ok().filter(|f| (1..=100_000).contains(f)).ok_or_else(|| format!("`{frames}` is not 1..=100000 frames"))?;
+    let method = HeadlessMethod::parse(method)?.gi().ok_or_else(|| format!("`{method}` is not a GI method"))?;
+    Ok((frames, method))
+}
+
+impl HeadlessArgs {
+    /// The options these flags ask for: the preset, then each override, then the checks that involve
+    /// several flags.
+    pub fn into_options(self) -> Result<HeadlessOptions, String> {
+        let mut o = HeadlessOptions {
+            scene: self.scene,
+            size: self.size,
+            frames: self.frames,
+            method: self.method,
+            indirect_only: self.indirect_only,
+            spp: self.spp,
+            seed: self.seed,
+            max_bounces: self.max_bounces,
+            ev100: self.ev100,
+            burley_direct: self.burley_direct,
+            pixel_centers: self.pixel_centers,
+            animate_light: self.animate_light,
+            animate_meshes: self.animate_meshes,
+            pose_frame: self.pose_frame,
+            stop_animation_at: self.stop_animation_at,
+            extra_triangles: self.extra_triangles,
+            switch_method: self.switch_method,
+            ..HeadlessOptions::default()
+        };
+        (o.rh, o.vpl, o.rsm_gather, o.drm) = match self.preset.as_str() {
+            "low" => (RadianceHintsVolume::LOW, VplSettings::LOW, RsmGatherSettings::LOW, DrmSettings::LOW),
+            "high" => (RadianceHintsVolume::HIGH, VplSettings::HIGH, RsmGatherSettings::HIGH, DrmSettings::HIGH),
+            _ => (RadianceHintsVolume::MEDIUM, VplSettings::MEDIUM, RsmGatherSettings::MEDIUM, DrmSettings::MEDIUM),
+        };
+        if self.full_res {
+            o.half_resolution = false;
+        } else if self.half_res {
+            o.half_resolution = true;
+        }
+        o.gi_output = if self.gi_output == "irradiance-volume" { GiOutput::IrradianceVolume } else { GiOutput::Composite };
+        o.debug_view = self.debug_view.as_deref().map(|view| {
+            use crate::camera::GiDebugView as V;
+            match view {
+                "irradiance" => V::Irradiance,
+                "hint-grid" => V::HintGrid,
+                "rsm-flux" => V::RsmFlux,
+                "rsm-normal" => V::RsmNormal,
+                "rsm-position" => V::RsmPosition,
+                "vpl-clamped" => V::VplClampedOnly,
+                "vpl-compensation" => V::VplCompensationOnly,
+                "vpl-positions" => V::VplPositions,
+                _ => V::IndirectOnly,
             }
-            "--frames" => options.frames = number(flag, value(flag, &mut args)?, 1, 100_000)?,
-            "--out" => {
-                let text = value(flag, &mut args)?;
-                if !text.ends_with(".exr") {
-                    return Err(format!("--out: `{text}` must end in .exr"));
-                }
-                options.out = PathBuf::from(text);
-                out_given = true;
-            }
-            "--method" => options.method = HeadlessMethod::parse(value(flag, &mut args)?)?,
-            "--indirect-only" => options.indirect_only = true,
-            "--spp" => options.spp = number(flag, value(flag, &mut args)?, 1, 1 << 20)?,
-            "--seed" => options.seed = number(flag, value(flag, &mut args)?, 0, u64::MAX)?,
-            "--max-bounces" => options.max_bounces = Some(number(flag, value(flag, &mut args)?, 1, 1000)?),
-            "--ev100" => {
-                let v: f32 = number(flag, value(flag, &mut args)?, -64.0, 64.0)?;
-                options.ev100 = Some(v);
-            }
-            "--burley-direct" => options.burley_direct = true,
-            "--pixel-centers" => options.pixel_centers = true,
-            "--preset" => {
-                (options.rh, options.vpl, options.rsm_gather, options.drm) = match value(flag, &mut args)? {
-                    "low" => (RadianceHintsVolume::LOW, VplSettings::LOW, RsmGatherSettings::LOW, DrmSettings::LOW),
-                    "medium" => (RadianceHintsVolume::MEDIUM, VplSettings::MEDIUM, RsmGatherSettings::MEDIUM, DrmSettings::MEDIUM),
-                    "high" => (RadianceHintsVolume::HIGH, VplSettings::HIGH, RsmGatherSettings::HIGH, DrmSettings::HIGH),
-                    other => return Err(format!("--preset: unknown preset `{other}` (low, medium, high)")),
-                }
-            }
-            "--rsm-samples" => options.rsm_gather.samples = any_number(flag, value(flag, &mut args)?)?,
-            "--rsm-radius" => options.rsm_gather.radius = any_number(flag, value(flag, &mut args)?)?,
-            "--rsm-weights" => {
-                use crate::rsm_gather::RsmSampleWeights as W;
-                options.rsm_gather.weights = match value(flag, &mut args)? {
-                    "paper" => W::Paper,
-                    "density" => W::Density,
-                    other => return Err(format!("--rsm-weights: `{other}` is not paper or density")),
-                }
-            }
-            "--drm-samples" => options.drm.samples_per_axis = any_number(flag, value(flag, &mut args)?)?,
-            "--drm-solid-angle" => {
-                options.drm.solid_angle = match value(flag, &mut args)? {
-                    "11" => DrmSolidAngle::Constant,
-                    "14" => DrmSolidAngle::TexelArea,
-                    "15" => DrmSolidAngle::SceneDiagonal,
-                    other => return Err(format!("--drm-solid-angle: `{other}` is not 11, 14 or 15 (the paper's equations)")),
-                }
-            }
-            "--drm-mip" => options.drm.mip_mapped = on_off(flag, value(flag, &mut args)?)?,
-            "--vpl-paths" => options.vpl.light_paths = any_number(flag, value(flag, &mut args)?)?,
-            "--vpl-bounces" => options.vpl.bounces = any_number(flag, value(flag, &mut args)?)?,
-            "--vpl-seed" => options.vpl.seed = any_number(flag, value(flag, &mut args)?)?,
-            "--vpl-bound" => options.vpl.geometry_bound = any_number(flag, value(flag, &mut args)?)?,
-            "--vpl-ism-resolution" => options.vpl.ism_resolution = any_number(flag, value(flag, &mut args)?)?,
-            "--vpl-ism-points" => options.vpl.ism_points = any_number(flag, value(flag, &mut args)?)?,
-            "--vpl-ism-bias" => options.vpl.ism_bias = any_number(flag, value(flag, &mut args)?)?,
-            "--ssbc-steps" => options.vpl.ssbc_steps = any_number(flag, value(flag, &mut args)?)?,
-            "--ssbc-solid-angle" => options.vpl.ssbc_solid_angle = any_number(flag, value(flag, &mut args)?)?,
-            "--ssbc-levels" => options.vpl.ssbc_levels = any_number(flag, value(flag, &mut args)?)?,
-            "--ssbc-blur" => {
-                options.vpl.ssbc_blur = on_off(flag, value(flag, &mut args)?)?
-            }
-            "--rh-resolution" => {
-                let text = value(flag, &mut args)?;
-                let parts: Vec<&str> = text.split(['x', 'X']).collect();
-                let n = |t: &str| t.parse::<u32>().map_err(|_| format!("--rh-resolution: `{text}` is not N or XxYxZ"));
-                options.rh_fit_cells = false;
-                options.rh.sizing = GridSizing::Fixed;
-                options.rh.resolution = match parts.as_slice() {
-                    [a] => bevy::math::UVec3::splat(n(a)?),
-                    [x, y, z] => bevy::math::UVec3::new(n(x)?, n(y)?, n(z)?),
-                    _ => return Err(format!("--rh-resolution: `{text}` is not N or XxYxZ")),
+        });
+        self.rh.apply(&mut o);
+        self.vpl.apply(&mut o.vpl);
+        self.one_bounce.apply(&mut o);
+
+        if o.switch_method.is_some_and(|(frames, _)| frames >= o.frames) {
+            return Err("--switch-method: the switch must come before the last of --frames".into());
+        }
+        if o.switch_method.is_some() && o.method.gi().is_none() {
+            return Err("--switch-method: switches from a GI method (--method rh, vpl, rsm or drm)".into());
+        }
+        if o.indirect_only && o.gi_output == GiOutput::IrradianceVolume {
+            return Err("--indirect-only measures the per-pixel reconstruction; render the IrradianceVolume output \
+                        in full and subtract a --method none render"
+                .into());
+        }
+        let dynamic_only = o.animate_meshes > 0 || o.pose_frame != 0.0 || o.stop_animation_at.is_some() || o.extra_triangles > 0;
+        if dynamic_only && o.scene != StandardScene::Dynamic {
+            return Err("--animate-meshes, --pose-frame, --stop-animation-at and --extra-triangles need --scene dynamic".into());
+        }
+        o.out = match self.out {
+            Some(out) => out,
+            None => {
+                let scene = match &o.scene {
+                    StandardScene::Gltf(path) => path.file_stem().map_or("gltf".into(), |s| s.to_string_lossy().into_owned()),
+                    other => other.name(),
                 };
+                let suffix = if o.indirect_only { "_indirect" } else { "" };
+                PathBuf::from(format!("out/{scene}_{}{suffix}.exr", o.method.name()))
             }
-            "--rh-cascade" => {
-                let levels = number(flag, value(flag, &mut args)?, 1, 6)?;
-                let extent = options.rh_cascade.map_or(crate::radiance_hints::RadianceHintsCascade::default().extent, |c| c.1);
-                options.rh_cascade = Some((levels, extent));
-            }
-            "--rh-cascade-extent" => {
-                let text = value(flag, &mut args)?;
-                let parts: Vec<f32> = text.split(['x', 'X']).map(|t| any_number(flag, t)).collect::<Result<_, _>>()?;
-                let [x, y, z] = parts[..] else {
-                    return Err(format!("{flag}: `{text}` is not XxYxZ"));
-                };
-                options.rh_cascade = Some((options.rh_cascade.map_or(3, |c| c.0), Vec3::new(x, y, z)));
-            }
-            "--rh-longest" => {
-                // The old fixed presets: cubic cells, N hints along the longest side of the scene.
-                options.rh.sizing = GridSizing::Fixed;
-                options.rh.resolution = bevy::math::UVec3::splat(number(flag, value(flag, &mut args)?, 2, 128)?);
-                options.rh_fit_cells = true;
-            }
-            "--rh-cell" | "--rh-hints" | "--rh-max-hints" => {
-                let text = value(flag, &mut args)?;
-                let (mut hints, mut max_cell, mut max_hints) = match options.rh.sizing {
-                    GridSizing::Adaptive { hints, max_cell, max_hints } => (hints, max_cell, max_hints),
-                    // Start from the default rule.
-                    GridSizing::Fixed => match GridSizing::MEDIUM {
-                        GridSizing::Adaptive { hints, max_cell, max_hints } => (hints, max_cell, max_hints),
-                        GridSizing::Fixed => unreachable!("the default rule is adaptive"),
-                    },
-                };
-                match flag {
-                    "--rh-cell" => max_cell = any_number(flag, text)?,
-                    "--rh-hints" => hints = any_number(flag, text)?,
-                    _ => max_hints = any_number(flag, text)?,
+        };
+        Ok(o)
+    }
+}
+
+impl RhArgs {
+    fn apply(self, o: &mut HeadlessOptions) {
+        let rh = &mut o.rh;
+        if let Some(resolution) = self.rh_resolution {
+            o.rh_fit_cells = false;
+            rh.sizing = GridSizing::Fixed;
+            rh.resolution = resolution;
+        }
+        if let Some(longest) = self.rh_longest {
+            // The old fixed presets: cubic cells, N hints along the longest side of the scene.
+            rh.sizing = GridSizing::Fixed;
+            rh.resolution = UVec3::splat(longest);
+            o.rh_fit_cells = true;
+        }
+        if self.rh_cell.is_some() || self.rh_hints.is_some() || self.rh_max_hints.is_some() {
+            // Start from the preset's adaptive rule (or the default one).
+            let (hints, max_cell, max_hints) = match (rh.sizing, GridSizing::MEDIUM) {
+                (GridSizing::Adaptive { hints, max_cell, max_hints }, _) | (GridSizing::Fixed, GridSizing::Adaptive { hints, max_cell, max_hints }) => {
+                    (hints, max_cell, max_hints)
                 }
-                options.rh.sizing = GridSizing::Adaptive { hints, max_cell, max_hints };
-            }
-            "--rh-order" => {
-                options.rh.sh_order = match value(flag, &mut args)? {
-                    "2" => ShOrder::Two,
-                    "3" => ShOrder::Three,
-                    other => return Err(format!("--rh-order: `{other}` is not 2 or 3")),
-                }
-            }
-            "--rh-samples" => options.rh.rsm_samples = any_number(flag, value(flag, &mut args)?)?,
-            "--rh-bounces" => options.rh.extra_bounces = any_number(flag, value(flag, &mut args)?)?,
-            "--rh-secondary" => options.rh.secondary_samples = any_number(flag, value(flag, &mut args)?)?,
-            "--rh-rmax" => options.rh.r_max = any_number(flag, value(flag, &mut args)?)?,
-            "--rh-coverage" => options.rh.rsm_coverage = any_number(flag, value(flag, &mut args)?)?,
-            "--rh-jitter" => options.rh.jitter = any_number(flag, value(flag, &mut args)?)?,
-            "--rh-blend" => options.rh.temporal_blend = any_number(flag, value(flag, &mut args)?)?,
-            "--rh-threshold" => options.rh.bounce_threshold = any_number(flag, value(flag, &mut args)?)?,
-            "--rh-reconstruction" => options.rh.reconstruction_samples = any_number(flag, value(flag, &mut args)?)?,
-            "--rh-near-field" => options.rh.near_field_occlusion = any_number(flag, value(flag, &mut args)?)?,
-            "--rh-irradiance" => {
-                options.rh.irradiance = match value(flag, &mut args)? {
-                    "linear" => IrradianceReconstruction::Linear,
-                    "nonlinear" => IrradianceReconstruction::NonLinear,
-                    other => return Err(format!("--rh-irradiance: `{other}` is not linear or nonlinear")),
-                }
-            }
-            "--rh-albedo" => {
-                options.rh.albedo_volume = on_off(flag, value(flag, &mut args)?)?
-            }
-            "--rh-depth-occlusion" => {
-                let steps: u32 = any_number(flag, value(flag, &mut args)?)?;
-                options.rh.depth_occlusion = (steps > 0).then_some(DepthOcclusion { samples: steps, ..default() });
-            }
-            "--rh-visibility" => {
-                options.rh.voxel_visibility = match value(flag, &mut args)? {
-                    "voxels" => true,
-                    "none" => false,
-                    other => return Err(format!("--rh-visibility: `{other}` is not voxels or none")),
-                }
-            }
-            "--rh-secondary-transport" => {
-                use crate::radiance_hints::SecondaryTransport as T;
-                options.rh.secondary = match value(flag, &mut args)? {
-                    "voxel" => T::VoxelMarch,
-                    "paper" => T::Paper,
-                    other => return Err(format!("--rh-secondary-transport: `{other}` is not voxel or paper")),
-                }
-            }
-            "--rh-refinement" => options.rh.refinement_updates = any_number(flag, value(flag, &mut args)?)?,
-            "--dump-volume" => options.dump_volume = Some(PathBuf::from(value(flag, &mut args)?)),
-            "--half-res" => options.half_resolution = true,
-            "--full-res" => options.half_resolution = false,
-            "--animate-light" => options.animate_light = true,
-            "--animate-meshes" => options.animate_meshes = number(flag, value(flag, &mut args)?, 0, 10)?,
-            "--pose-frame" => options.pose_frame = number(flag, value(flag, &mut args)?, 0.0, 1.0e6)?,
-            "--stop-animation-at" => {
-                options.stop_animation_at = Some(number(flag, value(flag, &mut args)?, 0.0, 1.0e6)?)
-            }
-            "--extra-triangles" => options.extra_triangles = number(flag, value(flag, &mut args)?, 0, 5_000_000)?,
-            "--switch-method" => {
-                let text = value(flag, &mut args)?;
-                let (frames, method) = text
-                    .split_once(':')
-                    .ok_or_else(|| format!("--switch-method: `{text}` is not FRAMES:METHOD"))?;
-                let frames = number(flag, frames, 1, 100_000)?;
-                let Some(method) = HeadlessMethod::parse(method)?.gi() else {
-                    return Err(format!("--switch-method: `{method}` is not a GI method"));
-                };
-                options.switch_method = Some((frames, method));
-            }
-            "--debug-view" => {
-                use crate::camera::GiDebugView as V;
-                options.debug_view = Some(match value(flag, &mut args)? {
-                    "indirect" => V::IndirectOnly,
-                    "irradiance" => V::Irradiance,
-                    "hint-grid" => V::HintGrid,
-                    "rsm-flux" => V::RsmFlux,
-                    "rsm-normal" => V::RsmNormal,
-                    "rsm-position" => V::RsmPosition,
-                    "vpl-clamped" => V::VplClampedOnly,
-                    "vpl-compensation" => V::VplCompensationOnly,
-                    "vpl-positions" => V::VplPositions,
-                    other => {
-                        return Err(format!(
-                            "--debug-view: `{other}` is not indirect, irradiance, hint-grid, rsm-flux, rsm-normal, \
-                             rsm-position, vpl-clamped, vpl-compensation or vpl-positions"
-                        ))
-                    }
-                })
-            }
-            "--gi-output" => {
-                options.gi_output = match value(flag, &mut args)? {
-                    "composite" => GiOutput::Composite,
-                    "irradiance-volume" => GiOutput::IrradianceVolume,
-                    other => return Err(format!("--gi-output: `{other}` is not composite or irradiance-volume")),
-                }
-            }
-            "--help" | "-h" => return Err(USAGE.to_string()),
-            other => return Err(format!("unknown flag `{other}`\n{USAGE}")),
+                (GridSizing::Fixed, GridSizing::Fixed) => unreachable!("the default rule is adaptive"),
+            };
+            rh.sizing = GridSizing::Adaptive {
+                hints: self.rh_hints.unwrap_or(hints),
+                max_cell: self.rh_cell.unwrap_or(max_cell),
+                max_hints: self.rh_max_hints.unwrap_or(max_hints),
+            };
+        }
+        if self.rh_cascade.is_some() || self.rh_cascade_extent.is_some() {
+            let extent = self.rh_cascade_extent.unwrap_or(crate::radiance_hints::RadianceHintsCascade::default().extent);
+            o.rh_cascade = Some((self.rh_cascade.unwrap_or(3), extent));
+        }
+        if let Some(order) = self.rh_order {
+            rh.sh_order = if order == "3" { ShOrder::Three } else { ShOrder::Two };
+        }
+        macro_rules! set {
+            ($($field:ident <- $flag:ident),* $(,)?) => {
+                $(if let Some(v) = self.$flag { rh.$field = v; })*
+            };
+        }
+        set!(
+            rsm_samples <- rh_samples,
+            extra_bounces <- rh_bounces,
+            secondary_samples <- rh_secondary,
+            r_max <- rh_rmax,
+            rsm_coverage <- rh_coverage,
+            jitter <- rh_jitter,
+            temporal_blend <- rh_blend,
+            bounce_threshold <- rh_threshold,
+            reconstruction_samples <- rh_reconstruction,
+            near_field_occlusion <- rh_near_field,
+            albedo_volume <- rh_albedo,
+            refinement_updates <- rh_refinement,
+        );
+        if let Some(irradiance) = self.rh_irradiance {
+            rh.irradiance = if irradiance == "linear" { IrradianceReconstruction::Linear } else { IrradianceReconstruction::NonLinear };
+        }
+        if let Some(steps) = self.rh_depth_occlusion {
+            rh.depth_occlusion = (steps > 0).then_some(DepthOcclusion { samples: steps, ..default() });
+        }
+        if let Some(visibility) = self.rh_visibility {
+            rh.voxel_visibility = visibility == "voxels";
+        }
+        if let Some(transport) = self.rh_secondary_transport {
+            use crate::radiance_hints::SecondaryTransport as T;
+            rh.secondary = if transport == "paper" { T::Paper } else { T::VoxelMarch };
+        }
+        o.dump_volume = self.dump_volume;
+    }
+}
+
+impl VplArgs {
+    fn apply(self, vpl: &mut VplSettings) {
+        macro_rules! set {
+            ($($field:ident <- $flag:ident),* $(,)?) => {
+                $(if let Some(v) = self.$flag { vpl.$field = v; })*
+            };
+        }
+        set!(
+            light_paths <- vpl_paths,
+            bounces <- vpl_bounces,
+            seed <- vpl_seed,
+            geometry_bound <- vpl_bound,
+            ism_resolution <- vpl_ism_resolution,
+            ism_points <- vpl_ism_points,
+            ism_bias <- vpl_ism_bias,
+            ssbc_steps <- ssbc_steps,
+            ssbc_solid_angle <- ssbc_solid_angle,
+            ssbc_levels <- ssbc_levels,
+            ssbc_blur <- ssbc_blur,
+        );
+    }
+}
+
+impl OneBounceArgs {
+    fn apply(self, o: &mut HeadlessOptions) {
+        if let Some(v) = self.rsm_samples {
+            o.rsm_gather.samples = v;
+        }
+        if let Some(v) = self.rsm_radius {
+            o.rsm_gather.radius = v;
+        }
+        if let Some(w) = self.rsm_weights {
+            use crate::rsm_gather::RsmSampleWeights as W;
+            o.rsm_gather.weights = if w == "paper" { W::Paper } else { W::Density };
+        }
+        if let Some(v) = self.drm_samples {
+            o.drm.samples_per_axis = v;
+        }
+        if let Some(eq) = self.drm_solid_angle {
+            o.drm.solid_angle = match eq.as_str() {
+                "11" => DrmSolidAngle::Constant,
+                "15" => DrmSolidAngle::SceneDiagonal,
+                _ => DrmSolidAngle::TexelArea,
+            };
+        }
+        if let Some(v) = self.drm_mip {
+            o.drm.mip_mapped = v;
         }
     }
-    if options.switch_method.is_some_and(|(frames, _)| frames >= options.frames) {
-        return Err("--switch-method: the switch must come before the last of --frames".into());
-    }
-    if options.switch_method.is_some() && options.method.gi().is_none() {
-        return Err("--switch-method: switches from a GI method (--method rh, vpl, rsm or drm)".into());
-    }
-    if options.indirect_only && options.gi_output == GiOutput::IrradianceVolume {
-        return Err("--indirect-only measures the per-pixel reconstruction; render the IrradianceVolume output \
-                    in full and subtract a --method none render"
-            .into());
-    }
-    let dynamic_only = options.animate_meshes > 0
-        || options.pose_frame != 0.0
-        || options.stop_animation_at.is_some()
-        || options.extra_triangles > 0;
-    if dynamic_only && options.scene != StandardScene::Dynamic {
-        return Err("--animate-meshes, --pose-frame, --stop-animation-at and --extra-triangles need --scene dynamic".into());
-    }
-    if !out_given {
-        let scene = match &options.scene {
-            StandardScene::Gltf(path) => path.file_stem().map_or("gltf".into(), |s| s.to_string_lossy().into_owned()),
-            other => other.name(),
-        };
-        let suffix = if options.indirect_only { "_indirect" } else { "" };
-        options.out = PathBuf::from(format!("out/{scene}_{}{suffix}.exr", options.method.name()));
-    }
-    Ok(options)
+}
+
+/// Parses the headless renderer's command line (without the program name). Errors are clap's (their
+/// `exit()` prints the message and exits with status 2, or prints `--help` and exits with 0), or a
+/// check that involves several flags, as a clap validation error.
+pub fn parse_args<'a>(args: impl IntoIterator<Item = &'a str>) -> Result<HeadlessOptions, clap::Error> {
+    use clap::{CommandFactory, Parser};
+    let cli = HeadlessCli::try_parse_from(std::iter::once("headless").chain(args))?;
+    cli.args.into_options().map_err(|message| HeadlessCli::command().error(clap::error::ErrorKind::ValueValidation, message))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
+    fn parse(line: &str) -> Result<HeadlessOptions, String> {
+        parse_args(line.split_whitespace()).map_err(|e| e.to_string())
+    }
+
     #[test]
     fn parses_a_full_command_line() {
-        let o = parse_args(
+        let o = parse(
             "--scene cornell --size 128x64 --frames 3 --out a/b.exr --method reference --indirect-only \
-             --spp 32 --seed 7 --max-bounces 2 --ev100 1.5"
-                .split_whitespace(),
+             --spp 32 --seed 7 --max-bounces 2 --ev100 1.5",
         )
         .unwrap();
         assert_eq!(o.size, UVec2::new(128, 64));
@@ -543,69 +703,102 @@ mod tests {
         assert!(o.indirect_only);
         assert_eq!(o.out, PathBuf::from("a/b.exr"));
         assert_eq!(o.ev100, Some(1.5));
+        assert_eq!(parse("--ev100 -2").unwrap().ev100, Some(-2.0));
+    }
+
+    #[test]
+    fn defaults_match_headless_options() {
+        let o = parse("").unwrap();
+        let d = HeadlessOptions::default();
+        assert_eq!((o.scene, o.size, o.frames, o.spp, o.method), (d.scene, d.size, d.frames, d.spp, d.method));
+        assert_eq!((o.half_resolution, o.rh, o.vpl), (d.half_resolution, d.rh, d.vpl));
     }
 
     #[test]
     fn bad_input_names_the_problem() {
-        let err = |s: &str| parse_args(s.split_whitespace()).unwrap_err();
+        let err = |s: &str| parse(s).unwrap_err();
         assert!(err("--size 0x10").contains("--size"));
         assert!(err("--size big").contains("WIDTHxHEIGHT"));
         assert!(err("--method magic").contains("unknown method `magic`"));
         assert!(err("--scene nowhere.glb").contains("does not exist"));
         assert!(err("--scene kitchen").contains("unknown scene"));
-        assert!(err("--frames").contains("needs a value"));
-        assert!(err("--spp -3").contains("not a valid number"));
+        assert!(err("--frames").contains("--frames"));
+        assert!(err("--spp 0").contains("--spp"));
+        assert!(parse("--spp -3").is_err());
         assert!(err("--out x.png").contains(".exr"));
-        assert!(err("--wat").contains("unknown flag"));
+        assert!(err("--wat").contains("--wat"));
         assert!(err("--ev100 NaN").contains("--ev100"));
+        assert!(err("--half-res --full-res").contains("cannot be used with"));
+    }
+
+    #[test]
+    fn help_lists_every_flag_with_its_default_and_exits_zero() {
+        let e = parse_args(["--help"]).unwrap_err();
+        assert_eq!(e.kind(), clap::error::ErrorKind::DisplayHelp);
+        assert_eq!(e.exit_code(), 0);
+        let help = e.to_string();
+        for flag in ["--scene", "--size", "--frames", "--method", "--rh-samples", "--vpl-paths", "--ssbc-steps", "--rsm-radius", "--drm-solid-angle", "--switch-method"] {
+            assert!(help.contains(flag), "{flag} missing from --help");
+        }
+        assert!(help.contains("[default: 256x256]") && help.contains("[default: 2048]"), "{help}");
+        assert_eq!(parse_args(["--wat"]).unwrap_err().exit_code(), 2);
     }
 
     #[test]
     fn methods_are_selected_through_gi_method() {
-        let o = parse_args("--method vpl --preset high --ssbc-steps 3 --vpl-bounces 4".split_whitespace()).unwrap();
+        let o = parse("--method vpl --preset high --ssbc-steps 3 --vpl-bounces 4").unwrap();
         assert_eq!(o.method, HeadlessMethod::Gi(GiMethod::Vpl));
         assert_eq!((o.vpl.ssbc_steps, o.vpl.bounces, o.vpl.light_paths), (3, 4, VplSettings::HIGH.light_paths));
-        assert_eq!(parse_args(["--method", "rh"]).unwrap().method, HeadlessMethod::Gi(GiMethod::RadianceHints));
+        // The preset applies first whatever the order of the flags.
+        let o = parse("--ssbc-steps 3 --preset high").unwrap();
+        assert_eq!(o.vpl.ssbc_steps, 3);
+        assert_eq!(parse("--method rh").unwrap().method, HeadlessMethod::Gi(GiMethod::RadianceHints));
         for name in HeadlessMethod::NAMES {
             assert_eq!(HeadlessMethod::parse(name).unwrap().name(), *name);
         }
+        let o = parse("--method rh --switch-method 2:vpl --frames 4").unwrap();
+        assert_eq!(o.switch_method, Some((2, GiMethod::Vpl)));
+        assert!(parse("--method rh --switch-method 4:vpl --frames 4").unwrap_err().contains("before the last"));
     }
 
     #[test]
     fn one_bounce_methods_take_presets_and_overrides() {
-        let o = parse_args("--method drm --preset high --drm-solid-angle 11 --drm-mip off".split_whitespace()).unwrap();
+        let o = parse("--method drm --preset high --drm-solid-angle 11 --drm-mip off").unwrap();
         assert_eq!(o.method, HeadlessMethod::Gi(GiMethod::Drm));
         assert_eq!((o.drm.samples_per_axis, o.drm.solid_angle, o.drm.mip_mapped), (16, DrmSolidAngle::Constant, false));
-        let o = parse_args("--method rsm --preset low --rsm-radius 0.2 --rsm-samples 50".split_whitespace()).unwrap();
+        let o = parse("--method rsm --preset low --rsm-radius 0.2 --rsm-samples 50 --rsm-weights paper").unwrap();
         assert_eq!(o.method, HeadlessMethod::Gi(GiMethod::RsmGather));
         assert_eq!((o.rsm_gather.samples, o.rsm_gather.radius), (50, 0.2));
-        let err = |s: &str| parse_args(s.split_whitespace()).unwrap_err();
-        assert!(err("--drm-solid-angle 12").contains("11, 14 or 15"));
-        assert!(err("--drm-mip maybe").contains("on or off"));
+        assert_eq!(o.rsm_gather.weights, crate::rsm_gather::RsmSampleWeights::Paper);
+        assert!(parse("--drm-solid-angle 12").unwrap_err().contains("12"));
+        assert!(parse("--drm-mip maybe").unwrap_err().contains("on or off"));
     }
 
     #[test]
     fn grid_flags_choose_fixed_adaptive_or_cascaded_grids() {
-        let o = parse_args("--method rh --rh-longest 24".split_whitespace()).unwrap();
-        assert_eq!((o.rh.sizing, o.rh.resolution, o.rh_fit_cells), (GridSizing::Fixed, bevy::math::UVec3::splat(24), true));
-        let o = parse_args("--method rh --rh-resolution 4x5x6".split_whitespace()).unwrap();
-        assert_eq!((o.rh.sizing, o.rh_fit_cells), (GridSizing::Fixed, false));
-        let o = parse_args("--method rh --rh-longest 8 --rh-cell 0.5 --rh-max-hints 1000".split_whitespace()).unwrap();
+        let o = parse("--method rh --rh-longest 24").unwrap();
+        assert_eq!((o.rh.sizing, o.rh.resolution, o.rh_fit_cells), (GridSizing::Fixed, UVec3::splat(24), true));
+        let o = parse("--method rh --rh-resolution 4x5x6").unwrap();
+        assert_eq!((o.rh.sizing, o.rh.resolution, o.rh_fit_cells), (GridSizing::Fixed, UVec3::new(4, 5, 6), false));
+        let o = parse("--method rh --rh-cell 0.5 --rh-max-hints 1000").unwrap();
         let GridSizing::Adaptive { max_cell, max_hints, hints } = o.rh.sizing else {
             panic!("--rh-cell makes the grid adaptive");
         };
         assert_eq!((max_cell, max_hints), (0.5, 1000));
         assert!(matches!(GridSizing::MEDIUM, GridSizing::Adaptive { hints: h, .. } if h == hints));
-        let o = parse_args("--method rh --rh-cascade 2 --rh-cascade-extent 8x4x8".split_whitespace()).unwrap();
+        let o = parse("--method rh --rh-cascade 2 --rh-cascade-extent 8x4x8").unwrap();
         assert_eq!(o.rh_cascade, Some((2, Vec3::new(8.0, 4.0, 8.0))));
-        let err = |s: &str| parse_args(s.split_whitespace()).unwrap_err();
-        assert!(err("--rh-cascade 9").contains("--rh-cascade"));
-        assert!(err("--rh-cascade-extent 8x4").contains("XxYxZ"));
+        assert!(parse("--rh-cascade 9").unwrap_err().contains("--rh-cascade"));
+        assert!(parse("--rh-cascade-extent 8x4").unwrap_err().contains("XxYxZ"));
+        assert!(parse("--rh-longest 8 --rh-cell 0.5").unwrap_err().contains("cannot be used with"));
+        let o = parse("--method rh --rh-depth-occlusion 4 --rh-irradiance linear --rh-albedo off --rh-order 3").unwrap();
+        assert_eq!(o.rh.depth_occlusion.map(|d| d.samples), Some(4));
+        assert_eq!((o.rh.irradiance, o.rh.albedo_volume, o.rh.sh_order), (IrradianceReconstruction::Linear, false, ShOrder::Three));
     }
 
     #[test]
     fn default_output_name_follows_scene_and_method() {
-        let o = parse_args("--method reference --indirect-only".split_whitespace()).unwrap();
+        let o = parse("--method reference --indirect-only").unwrap();
         assert_eq!(o.out, PathBuf::from("out/cornell_reference_indirect.exr"));
     }
 }
