@@ -165,6 +165,23 @@ impl GiSettings for DrmSettings {
     }
 }
 
+/// The GPU capabilities DRM needs, as `(name, required, found)` for every shortfall: compute shaders
+/// (the photon pass) with four storage buffers and workgroups of the crate's size.
+pub fn missing_capabilities(limits: &bevy::render::settings::WgpuLimits, compute: bool) -> Vec<crate::Shortfall> {
+    let mut missing = Vec::new();
+    let mut need = |name, required: u64, found: u64| {
+        if found < required {
+            missing.push((name, required, found));
+        }
+    };
+    need("compute shaders (DownlevelFlags::COMPUTE_SHADERS)", 1, compute as u64);
+    need("max_storage_buffers_per_shader_stage", 4, limits.max_storage_buffers_per_shader_stage as u64);
+    let threads = crate::WORKGROUP_SIZE as u64;
+    need("max_compute_workgroup_size_x", threads, limits.max_compute_workgroup_size_x as u64);
+    need("max_compute_invocations_per_workgroup", threads, limits.max_compute_invocations_per_workgroup as u64);
+    missing
+}
+
 /// Direct Radiance Mapping: settings validation, the photon pass, the per-view gather. Added by
 /// [`crate::DiffuseGiPlugin`].
 pub struct DrmPlugin;
@@ -186,14 +203,7 @@ impl Plugin for DrmPlugin {
     fn finish(&self, app: &mut App) {
         use bevy::render::render_resource::DownlevelFlags;
         let supported = crate::gpu_supports(app, "Direct Radiance Mapping", |limits, flags| {
-            let mut missing = Vec::new();
-            if !flags.contains(DownlevelFlags::COMPUTE_SHADERS) {
-                missing.push(("compute shaders (DownlevelFlags::COMPUTE_SHADERS)", 1, 0));
-            }
-            if limits.max_storage_buffers_per_shader_stage < 4 {
-                missing.push(("max_storage_buffers_per_shader_stage", 4, limits.max_storage_buffers_per_shader_stage as u64));
-            }
-            missing
+            missing_capabilities(limits, flags.contains(DownlevelFlags::COMPUTE_SHADERS))
         });
         let Some(render_app) = app.get_sub_app_mut(RenderApp).filter(|_| supported) else {
             return;
@@ -225,6 +235,14 @@ mod tests {
         assert_eq!((clean.samples_per_axis, clean.intensity), (1, 1.0));
         let big = DrmSettings { samples_per_axis: 99, ..default() }.sanitized().0;
         assert_eq!(big.samples_per_axis, DrmSettings::MAX_SAMPLES_PER_AXIS);
+    }
+
+    #[test]
+    fn a_device_with_webgpu_default_limits_runs_drm_and_webgl2_does_not() {
+        use bevy::render::settings::WgpuLimits;
+        assert!(missing_capabilities(&WgpuLimits::default(), true).is_empty());
+        let names: Vec<_> = missing_capabilities(&WgpuLimits::downlevel_webgl2_defaults(), false).iter().map(|m| m.0).collect();
+        assert!(names.iter().any(|n| n.contains("COMPUTE_SHADERS")), "{names:?}");
     }
 
     #[test]

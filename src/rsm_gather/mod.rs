@@ -157,6 +157,14 @@ impl GiSettings for RsmGatherSettings {
     }
 }
 
+/// The GPU capabilities the RSM gather needs, as `(name, required, found)` for every shortfall: a
+/// fragment shader with three storage buffers (the pattern, the lights, the faces), which WebGPU's
+/// defaults give and WebGL2 does not.
+pub fn missing_capabilities(limits: &bevy::render::settings::WgpuLimits) -> Vec<crate::Shortfall> {
+    let found = limits.max_storage_buffers_per_shader_stage as u64;
+    if found < 3 { vec![("max_storage_buffers_per_shader_stage", 3, found)] } else { Vec::new() }
+}
+
 /// The RSM gather: settings validation, the per-view pass. Added by [`crate::DiffuseGiPlugin`].
 pub struct RsmGatherPlugin;
 
@@ -171,14 +179,7 @@ impl Plugin for RsmGatherPlugin {
     }
 
     fn finish(&self, app: &mut App) {
-        // Fragment shaders with storage buffers: everything WebGPU's defaults give.
-        let supported = crate::gpu_supports(app, "the RSM gather", |limits, _| {
-            let mut missing = Vec::new();
-            if limits.max_storage_buffers_per_shader_stage < 3 {
-                missing.push(("max_storage_buffers_per_shader_stage", 3, limits.max_storage_buffers_per_shader_stage as u64));
-            }
-            missing
-        });
+        let supported = crate::gpu_supports(app, "the RSM gather", |limits, _| missing_capabilities(limits));
         let Some(render_app) = app.get_sub_app_mut(RenderApp).filter(|_| supported) else {
             return;
         };
@@ -198,6 +199,14 @@ mod tests {
         assert!(RsmGatherSettings::LOW.samples < RsmGatherSettings::MEDIUM.samples);
         assert!(RsmGatherSettings::MEDIUM.samples < RsmGatherSettings::HIGH.samples);
         assert_eq!(RsmGatherSettings::default(), RsmGatherSettings::MEDIUM);
+    }
+
+    #[test]
+    fn a_device_with_webgpu_default_limits_runs_the_gather_and_webgl2_does_not() {
+        use bevy::render::settings::WgpuLimits;
+        assert!(missing_capabilities(&WgpuLimits::default()).is_empty());
+        let missing = missing_capabilities(&WgpuLimits::downlevel_webgl2_defaults());
+        assert_eq!(missing.first().map(|m| m.0), Some("max_storage_buffers_per_shader_stage"), "{missing:?}");
     }
 
     #[test]
