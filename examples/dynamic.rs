@@ -35,6 +35,7 @@ fn main() -> AppExit {
             DiffuseGiPlugin::default(),
             DiffuseGiInspectorPlugin,
             StandardScenesPlugin,
+            common::CiCapturePlugin,
         ))
         // The scene's clock: the light orbits and one object moves from the start.
         .insert_resource(DynamicScene { animate_light: true, moving_meshes: 1, ..default() })

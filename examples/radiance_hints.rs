@@ -39,6 +39,7 @@ fn main() -> AppExit {
             DiffuseGiPlugin::default(),
             DiffuseGiInspectorPlugin,
             StandardScenesPlugin,
+            common::CiCapturePlugin,
         ))
         .insert_resource(Example { scene, moving: true, preset: 1 })
         .add_systems(Startup, setup)

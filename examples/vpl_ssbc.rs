@@ -40,6 +40,7 @@ fn main() -> AppExit {
             DiffuseGiPlugin::default(),
             DiffuseGiInspectorPlugin,
             StandardScenesPlugin,
+            common::CiCapturePlugin,
         ))
         .insert_resource(Example { scene, moving: false, preset: 1 })
         .add_systems(Startup, setup)

@@ -120,3 +120,60 @@ pub fn frame_ms(report: &HeadlessReport, timed: usize) -> f64 {
         report.sidecar["frame_ms"].as_array().map(|a| a.iter().filter_map(|v| v.as_f64()).collect()).unwrap_or_default();
     median(&frames[frames.len().saturating_sub(timed)..])
 }
+
+/// The fixed-frame harness CI runs every windowed example with, in a real window (Xvfb) on lavapipe.
+/// Inert unless `DIFFUSE_GI_CAPTURE=OUT.png` is set; then time advances a fixed 1/60 s per frame, a
+/// screenshot of the window (3D view and panel) is saved at frame `DIFFUSE_GI_CAPTURE_FRAME` (default
+/// 40) and the app exits once it is written. `DIFFUSE_GI_NO_GI=1` keeps every camera's bounced light off,
+/// for the test's "unchanged from no GI" comparison.
+pub struct CiCapturePlugin;
+
+#[derive(Resource)]
+struct CiCapture {
+    path: PathBuf,
+    frame: u32,
+    no_gi: bool,
+    count: u32,
+}
+
+impl Plugin for CiCapturePlugin {
+    fn build(&self, app: &mut App) {
+        let Some(path) = std::env::var_os("DIFFUSE_GI_CAPTURE").map(PathBuf::from) else {
+            return;
+        };
+        let frame = std::env::var("DIFFUSE_GI_CAPTURE_FRAME").ok().and_then(|f| f.parse().ok()).unwrap_or(40);
+        let no_gi = std::env::var_os("DIFFUSE_GI_NO_GI").is_some();
+        app.insert_resource(bevy::time::TimeUpdateStrategy::ManualDuration(std::time::Duration::from_secs_f64(1.0 / 60.0)))
+            .insert_resource(CiCapture { path, frame, no_gi, count: 0 })
+            .add_systems(Last, ci_capture);
+    }
+}
+
+fn ci_capture(
+    mut commands: Commands,
+    mut capture: ResMut<CiCapture>,
+    mut cameras: Query<&mut bevy_diffuse_gi::camera::DiffuseGi>,
+    mut exit: MessageWriter<AppExit>,
+) {
+    use bevy::render::view::screenshot::{Screenshot, save_to_disk};
+    capture.count += 1;
+    if capture.no_gi {
+        for mut gi in &mut cameras {
+            if gi.enabled {
+                gi.enabled = false;
+            }
+        }
+    }
+    if capture.count == capture.frame {
+        let _ = std::fs::remove_file(&capture.path);
+        commands.spawn(Screenshot::primary_window()).observe(save_to_disk(capture.path.clone()));
+    }
+    // Saving happens a few frames later, on the render thread's readback.
+    if capture.count > capture.frame && capture.path.exists() {
+        exit.write(AppExit::Success);
+    }
+    if capture.count > capture.frame + 600 {
+        error!("the screenshot for {} never arrived", capture.path.display());
+        exit.write(AppExit::error());
+    }
+}

@@ -26,6 +26,7 @@ pub fn run(tool: &'static str, title: &'static str, method: GiMethod) -> AppExit
             DiffuseGiPlugin::default(),
             DiffuseGiInspectorPlugin,
             StandardScenesPlugin,
+            crate::common::CiCapturePlugin,
         ))
         .insert_resource(Example { scene, method, moving: false, preset: 1, block_near: false })
         .add_systems(Startup, setup)
@@ -199,7 +200,7 @@ fn help_window(
             ui.label("M  next method");
             ui.label("P  next preset (RSM gather and DRM)");
             ui.label("E  DRM: next solid angle (Eq. 11, 14, 15)");
-            ui.label("W  RSM gather: ξ₁ ↔ ξ₁² weights");
+            ui.label("W  RSM gather: density or paper weights");
             ui.label("V  next debug view");
             ui.label("H  half resolution");
             ui.label(format!("B  block next to the light ({})", if example.block_near { "on" } else { "off" }));

@@ -240,11 +240,9 @@ pub fn rsm_gather_ui(ui: &mut egui::Ui, settings: &mut Mut<RsmGatherSettings>) {
             .text("samples per pixel and light"),
     );
     ui.add(egui::Slider::new(&mut v.radius, 0.01..=1.0).text("disk radius r_max (× RSM side)"));
-    ui.horizontal(|ui| {
-        ui.label("sample weights:");
-        ui.radio_value(&mut v.weights, RsmSampleWeights::Density, "ξ₁ (density)");
-        ui.radio_value(&mut v.weights, RsmSampleWeights::Paper, "ξ₁² (paper)");
-    });
+    let mut paper = v.weights == RsmSampleWeights::Paper;
+    ui.checkbox(&mut paper, "the paper's sample weights (xi1^2; default: by density, xi1)");
+    v.weights = if paper { RsmSampleWeights::Paper } else { RsmSampleWeights::Density };
     ui.add(egui::Slider::new(&mut v.intensity, 0.0..=1000.0).logarithmic(true).text("intensity"));
     commit(v, settings);
 }
