@@ -222,8 +222,8 @@ mod tests {
             assert!(preset.sanitized().1.is_empty(), "{preset:?}");
             assert_eq!(preset.solid_angle, DrmSolidAngle::TexelArea);
         }
-        assert!(DrmSettings::LOW.samples_per_axis < DrmSettings::MEDIUM.samples_per_axis);
-        assert!(DrmSettings::MEDIUM.samples_per_axis < DrmSettings::HIGH.samples_per_axis);
+        let counts = [DrmSettings::LOW, DrmSettings::MEDIUM, DrmSettings::HIGH].map(|p| p.samples_per_axis);
+        assert!(counts.windows(2).all(|w| w[0] < w[1]), "{counts:?}");
         assert_eq!(DrmSettings::default().samples_per_axis, 3);
     }
 

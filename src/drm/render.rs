@@ -357,7 +357,6 @@ fn build_photons(
 }
 
 /// The gather of one camera into its indirect-light target.
-#[expect(clippy::too_many_arguments, reason = "a view pass and its inputs")]
 fn gather_drm(
     view: ViewQuery<(Entity, &ExtractedDiffuseGi, &ViewUniformOffset, &ViewPrepassTextures, &GiViewTarget)>,
     gpu: Res<DrmGpu>,

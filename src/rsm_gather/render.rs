@@ -198,7 +198,6 @@ fn prepare_rsm_gather(
 }
 
 /// The gather of one camera into its indirect-light target.
-#[expect(clippy::too_many_arguments, reason = "a view pass and its inputs")]
 fn gather_rsm(
     view: ViewQuery<(Entity, &ExtractedDiffuseGi, &ViewUniformOffset, &ViewPrepassTextures, &GiViewTarget)>,
     gpu: Res<RsmGatherGpu>,

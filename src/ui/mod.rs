@@ -36,6 +36,7 @@ impl Plugin for DiffuseGiInspectorPlugin {
     }
 }
 
+#[expect(clippy::too_many_arguments, reason = "the panel reads every component and resource it shows")]
 fn inspector_ui(
     mut contexts: EguiContexts,
     mut commands: Commands,
