@@ -28,6 +28,7 @@ use bevy_diffuse_gi::headless::{self, HeadlessMethod, HeadlessOptions, HeadlessR
 use bevy_diffuse_gi::metrics::{self, ErrorMetrics};
 use bevy_diffuse_gi::radiance_hints::RadianceHintsVolume;
 use bevy_diffuse_gi::scenes::StandardScene;
+use bevy_diffuse_gi::settings::GiSettings;
 use bevy_diffuse_gi::vpl::VplSettings;
 
 const SECTIONS: &[&str] = &["accuracy", "corners", "timing", "equal_time"];

@@ -2,11 +2,11 @@
 
 use std::sync::Arc;
 
-use bevy::platform::collections::HashSet;
 use bevy::prelude::*;
 use bevy::render::Extract;
 
 use super::VplSettings;
+use crate::settings::GiSettings;
 use super::generate::{
     EmissionGuide, IsmPoint, PilotHits, Vpl, WalkSettings, automatic_bound, generate_vpls, ism_positions, ism_samples, pilot_hits, surface_area,
 };
@@ -54,41 +54,6 @@ struct VplKey {
     /// The guides the paths were drawn from (they change when a camera crosses to another side of a
     /// surface the lights reach, not with every camera move).
     guides: Vec<EmissionGuide>,
-}
-
-/// Warns once per camera and field about clamped settings.
-pub(crate) fn validate_vpl_settings(
-    cameras: Query<(Entity, &VplSettings), Changed<VplSettings>>,
-    mut warned: Local<HashSet<(Entity, &'static str)>>,
-    mut warnings: ResMut<crate::DiffuseGiWarnings>,
-) {
-    for (entity, settings) in &cameras {
-        let (clean, fields) = settings.sanitized();
-        for field in fields {
-            if warned.insert((entity, field)) {
-                crate::gi_warning(
-                    &mut warnings,
-                    format!("bevy_diffuse_gi: VplSettings on {entity}: invalid `{field}`, using {}", field_value(&clean, field)),
-                );
-            }
-        }
-    }
-}
-
-fn field_value(s: &VplSettings, field: &str) -> String {
-    match field {
-        "light_paths" => s.light_paths.to_string(),
-        "bounces" => s.bounces.to_string(),
-        "geometry_bound" => s.geometry_bound.to_string(),
-        "ism_resolution" => s.ism_resolution.to_string(),
-        "ism_points" => s.ism_points.to_string(),
-        "ism_bias" => s.ism_bias.to_string(),
-        "ssbc_steps" => s.ssbc_steps.to_string(),
-        "ssbc_solid_angle" => s.ssbc_solid_angle.to_string(),
-        "ssbc_discontinuity_solid_angle" => s.ssbc_discontinuity_solid_angle.to_string(),
-        "ssbc_levels" => s.ssbc_levels.to_string(),
-        _ => s.intensity.to_string(),
-    }
 }
 
 /// The settings of the first active camera that uses the VPL method, if any.

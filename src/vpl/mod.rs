@@ -89,6 +89,8 @@ use bevy::render::RenderApp;
 pub use generate::Vpl;
 pub use render::{GpuVpl, VplUniform};
 
+use crate::settings::{Clamped, GiSettings};
+
 /// The settings of the VPL method, on a camera with [`DiffuseGi`](crate::camera::DiffuseGi)
 /// `{ method: GiMethod::Vpl, .. }`. A camera without it uses [`VplSettings::default`] (the medium preset).
 ///
@@ -182,41 +184,6 @@ impl VplSettings {
         ..Self::MEDIUM
     };
 
-    /// The settings with every field in range, and the names of the fields that were not.
-    pub fn sanitized(&self) -> (Self, Vec<&'static str>) {
-        let mut s = self.clone();
-        let mut bad = Vec::new();
-        fn clamp_u(v: &mut u32, lo: u32, hi: u32, name: &'static str, bad: &mut Vec<&'static str>) {
-            if !(lo..=hi).contains(v) {
-                *v = (*v).clamp(lo, hi);
-                bad.push(name);
-            }
-        }
-        fn clamp_f(v: &mut f32, lo: f32, hi: f32, default: f32, name: &'static str, bad: &mut Vec<&'static str>) {
-            if !v.is_finite() {
-                *v = default;
-                bad.push(name);
-            } else if !(lo..=hi).contains(v) {
-                *v = v.clamp(lo, hi);
-                bad.push(name);
-            }
-        }
-        clamp_u(&mut s.light_paths, 1, 16384, "light_paths", &mut bad);
-        clamp_u(&mut s.bounces, 1, 32, "bounces", &mut bad);
-        if s.geometry_bound != 0.0 {
-            clamp_f(&mut s.geometry_bound, 1e-6, 1e6, 0.0, "geometry_bound", &mut bad);
-        }
-        clamp_u(&mut s.ism_resolution, 8, 128, "ism_resolution", &mut bad);
-        clamp_u(&mut s.ism_points, 64, 65536, "ism_points", &mut bad);
-        clamp_f(&mut s.ism_bias, 0.0, 1.0, 0.05, "ism_bias", &mut bad);
-        clamp_u(&mut s.ssbc_steps, 0, 3, "ssbc_steps", &mut bad);
-        clamp_f(&mut s.ssbc_solid_angle, 0.001, 1.0, 0.08, "ssbc_solid_angle", &mut bad);
-        clamp_f(&mut s.ssbc_discontinuity_solid_angle, 0.001, 1.0, 0.04, "ssbc_discontinuity_solid_angle", &mut bad);
-        clamp_u(&mut s.ssbc_levels, 1, 8, "ssbc_levels", &mut bad);
-        clamp_f(&mut s.intensity, 0.0, 1000.0, 1.0, "intensity", &mut bad);
-        (s, bad)
-    }
-
     /// The VPL count this allows at most (paths × bounces; Russian roulette usually stops far below).
     pub fn max_vpls(&self) -> u32 {
         self.light_paths * self.bounces
@@ -226,6 +193,30 @@ impl VplSettings {
 impl Default for VplSettings {
     fn default() -> Self {
         Self::MEDIUM
+    }
+}
+
+impl GiSettings for VplSettings {
+    const NAME: &'static str = "VplSettings";
+
+    fn sanitized(&self) -> (Self, Vec<(&'static str, String)>) {
+        let mut s = self.clone();
+        let mut c = Clamped::default();
+        c.uint(&mut s.light_paths, 1, 16384, "light_paths");
+        c.uint(&mut s.bounces, 1, 32, "bounces");
+        // 0 is valid: the automatic bound.
+        if s.geometry_bound != 0.0 {
+            c.float(&mut s.geometry_bound, 1e-6, 1e6, 0.0, "geometry_bound");
+        }
+        c.uint(&mut s.ism_resolution, 8, 128, "ism_resolution");
+        c.uint(&mut s.ism_points, 64, 65536, "ism_points");
+        c.float(&mut s.ism_bias, 0.0, 1.0, 0.05, "ism_bias");
+        c.uint(&mut s.ssbc_steps, 0, 3, "ssbc_steps");
+        c.float(&mut s.ssbc_solid_angle, 0.001, 1.0, 0.08, "ssbc_solid_angle");
+        c.float(&mut s.ssbc_discontinuity_solid_angle, 0.001, 1.0, 0.04, "ssbc_discontinuity_solid_angle");
+        c.uint(&mut s.ssbc_levels, 1, 8, "ssbc_levels");
+        c.float(&mut s.intensity, 0.0, 1000.0, 1.0, "intensity");
+        (s, c.fields)
     }
 }
 
@@ -263,7 +254,10 @@ impl Plugin for VplPlugin {
             .init_resource::<extract::VplSet>()
             .add_systems(
                 PostUpdate,
-                (extract::validate_vpl_settings, extract::update_vpls.after(crate::scene::SceneSnapshotSystems::Update)),
+                (
+                    crate::settings::validate_settings::<VplSettings>,
+                    extract::update_vpls.after(crate::scene::SceneSnapshotSystems::Update),
+                ),
             );
         if let Some(render_app) = app.get_sub_app_mut(RenderApp) {
             render_app.insert_resource(shaders);
@@ -309,6 +303,7 @@ mod tests {
             ..VplSettings::MEDIUM
         };
         let (clean, bad) = s.sanitized();
+        let bad: Vec<_> = bad.iter().map(|b| b.0).collect();
         assert_eq!(
             bad,
             vec!["light_paths", "bounces", "geometry_bound", "ism_resolution", "ism_bias", "ssbc_steps", "intensity"]
