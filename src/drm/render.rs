@@ -185,7 +185,8 @@ fn init_drm_pipelines(world: &mut World) {
 
 /// One set of sample photons: `n × n` per light face, mip-mapped or not.
 struct PhotonSet {
-    photons: Buffer,
+    /// `None` until the set's layout is first known.
+    photons: Option<Buffer>,
     /// The faces cut into photons, in atlas order.
     jobs: StorageBuffer<Vec<DrmFaceJob>>,
     uniform: UniformBuffer<DrmPhotonsUniform>,
@@ -238,12 +239,7 @@ fn prepare_drm(
         let cells = s.samples_per_axis * s.samples_per_axis;
         let count = faces.len() as u32 * cells;
         let set = gpu.sets.entry(key).or_insert_with(|| PhotonSet {
-            photons: device.create_buffer(&BufferDescriptor {
-                label: Some("diffuse_gi_drm_photons"),
-                size: 16,
-                usage: BufferUsages::STORAGE,
-                mapped_at_creation: false,
-            }),
+            photons: None,
             jobs: StorageBuffer::default(),
             uniform: UniformBuffer::default(),
             count: 0,
@@ -252,13 +248,13 @@ fn prepare_drm(
         });
         // A new layout (lights, faces or photon count; the set is keyed by n and the mip mode): new
         // buffers, and photons to make before the next gather.
-        if set.count != count || set.faces != faces || set.uniform.buffer().is_none() {
-            set.photons = device.create_buffer(&BufferDescriptor {
+        if set.count != count || set.faces != faces || set.photons.is_none() {
+            set.photons = Some(device.create_buffer(&BufferDescriptor {
                 label: Some("diffuse_gi_drm_photons"),
                 size: DrmPhoton::min_size().get() * count.max(1) as u64,
                 usage: BufferUsages::STORAGE,
                 mapped_at_creation: false,
-            });
+            }));
             let faces_of = |light: u32| atlas.slots[light as usize].faces;
             let mut jobs: Vec<DrmFaceJob> = faces
                 .iter()
@@ -329,7 +325,8 @@ fn build_photons(
         if set.built_version == Some(version) {
             continue;
         }
-        let (Some(uniform), Some(jobs)) = (set.uniform.binding(), set.jobs.binding()) else {
+        let (Some(uniform), Some(jobs), Some(photons)) = (set.uniform.binding(), set.jobs.binding(), set.photons.as_ref())
+        else {
             continue;
         };
         if set.count > 0 {
@@ -344,7 +341,7 @@ fn build_photons(
                     &atlas.flux_view,
                     lights.clone(),
                     faces.clone(),
-                    set.photons.as_entire_binding(),
+                    photons.as_entire_binding(),
                 )),
             );
             pass.set_bind_group(0, &group, &[]);
@@ -376,12 +373,13 @@ fn gather_drm(
     let Some(set) = gpu.sets.get(&key).filter(|s| s.count > 0 && s.built_version == Some(atlas.version)) else {
         return;
     };
-    let (Some(pipeline), Some(uniforms), Some(depth), Some(gbuffer), Some(gather_uniforms)) = (
+    let (Some(pipeline), Some(uniforms), Some(depth), Some(gbuffer), Some(gather_uniforms), Some(photons)) = (
         pipeline_cache.get_render_pipeline(pipeline_id),
         view_uniforms.uniforms.binding(),
         prepass.depth_view(),
         prepass.deferred_view(),
         gpu.uniforms.binding(),
+        set.photons.as_ref(),
     ) else {
         return;
     };
@@ -394,7 +392,7 @@ fn gather_drm(
     let gather_group = device.create_bind_group(
         "diffuse_gi_drm_gather_bind_group",
         &pipeline_cache.get_bind_group_layout(&pipelines.gather_layout),
-        &BindGroupEntries::sequential((gather_uniforms, set.photons.as_entire_binding())),
+        &BindGroupEntries::sequential((gather_uniforms, photons.as_entire_binding())),
     );
     crate::composite::draw_into_target(
         &mut ctx,
