@@ -66,7 +66,7 @@ pub mod prelude {
     pub use crate::rsm_gather::{RsmGatherSettings, RsmSampleWeights};
     pub use crate::drm::{DrmSettings, DrmSolidAngle};
     #[cfg(feature = "egui")]
-    pub use crate::ui::DiffuseGiInspectorPlugin;
+    pub use crate::ui::{DiffuseGiInspector, DiffuseGiInspectorPlugin};
 }
 
 /// The plugin: the GI methods' render passes and the scene snapshot they read. Anything without the

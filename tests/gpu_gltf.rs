@@ -112,11 +112,11 @@ fn textured_partly_metallic_gltf_has_the_same_colours_in_the_tracer_as_in_bevy()
 }
 
 #[test]
-fn gltf_textures_in_jpeg_and_webp_load_and_colour_the_scene() {
-    // tests/assets/textured_chair_{jpeg,webp}.gltf (make_image_format_variants.py): the chair of
-    // textured_chair.gltf with its textures as external JPEG and WebP files, the formats most glTF files
-    // ship. Both must load and show the orange seat in Bevy and in the tracer.
-    for file in ["textured_chair_jpeg.gltf", "textured_chair_webp.gltf"] {
+fn gltf_textures_in_jpeg_webp_and_ktx2_load_and_colour_the_scene() {
+    // tests/assets/textured_chair_{jpeg,webp,ktx2}.gltf (make_image_format_variants.py): the chair of
+    // textured_chair.gltf with its textures as external JPEG, WebP and KTX2 files, the formats glTF files
+    // ship. Each must load and show the orange seat in Bevy and in the tracer.
+    for file in ["textured_chair_jpeg.gltf", "textured_chair_webp.gltf", "textured_chair_ktx2.gltf"] {
         let test = format!("gltf_textures_{file}");
         let scene = StandardScene::Gltf(asset(file));
         let bevy = render(&HeadlessOptions { scene: scene.clone(), frames: 1, ..Default::default() }).image;

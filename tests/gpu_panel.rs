@@ -63,3 +63,55 @@ fn intensity_two_from_the_panel_doubles_the_indirect_light() {
         check(&test, (ratio - 2.0).abs() < 0.04, &after, Some(&before), format!("{}: intensity 2 gives {ratio:.4} × the light", method.name()));
     }
 }
+
+/// What the panel shows of each Radiance Hints volume, frame by frame: its activity as the main world sees
+/// it (the same resource the panel reads), on a still `cornell` with the medium preset and
+/// `bounce_threshold` as given.
+fn volume_activity(bounce_threshold: f32, frames: u32) -> Vec<Option<bevy_diffuse_gi::radiance_hints::RhVolumeActivity>> {
+    use bevy_diffuse_gi::radiance_hints::{RadianceHintsActivity, RadianceHintsVolume};
+    use std::sync::{Arc, Mutex};
+    let options = HeadlessOptions {
+        scene: StandardScene::Cornell,
+        method: HeadlessMethod::Gi(GiMethod::RadianceHints),
+        rh: RadianceHintsVolume { bounce_threshold, ..RadianceHintsVolume::MEDIUM },
+        size: UVec2::new(64, 64),
+        frames,
+        ..Default::default()
+    };
+    let seen = Arc::new(Mutex::new(Vec::new()));
+    let record = seen.clone();
+    let _guard = common::render_lock();
+    headless::run_with(&options, move |app| {
+        app.add_systems(Last, move |activity: Res<RadianceHintsActivity>, volumes: Query<Entity, With<RadianceHintsVolume>>| {
+            if let Some(volume) = volumes.iter().next() {
+                record.lock().unwrap().push(activity.get(volume));
+            }
+        });
+    })
+    .expect("render");
+    let seen = seen.lock().unwrap().clone();
+    seen
+}
+
+#[test]
+fn the_panel_shows_a_still_volume_updating_then_reused_and_the_bounces_it_ran() {
+    let frames = volume_activity(0.01, 40);
+    let active: Vec<_> = frames.iter().flatten().collect();
+    assert!(active.len() >= 20, "the volume was active in only {} of {} frames", active.len(), frames.len());
+    assert!(active.iter().any(|a| a.updating), "the volume never updated: {active:?}");
+    let last = active.last().unwrap();
+    // Medium preset: 17 updates to converge (blend 0.5, 16 refinement updates), then the field is reused.
+    assert!(!last.updating && last.frames_reused >= 3, "a still volume keeps updating: {last:?}");
+    let run = last.extra_bounces_run.expect("the bounce count was never read back");
+    assert!((1..=last.extra_bounces_max).contains(&run), "{run} extra bounces of at most {}", last.extra_bounces_max);
+    eprintln!("{}", bevy_diffuse_gi::ui::activity_line(Some(last)));
+
+    // The count is the GPU's decision: with no stop threshold every allowed bounce runs; with a stop at
+    // 100 % of the light so far (no bounce adds that much) only the first one does.
+    let all = volume_activity(0.0, 12);
+    let all = all.iter().flatten().last().and_then(|a| a.extra_bounces_run.map(|k| (k, a.extra_bounces_max)));
+    assert!(matches!(all, Some((k, max)) if k == max), "threshold 0: {all:?}");
+    let one = volume_activity(1.0, 12);
+    let one = one.iter().flatten().last().and_then(|a| a.extra_bounces_run);
+    assert_eq!(one, Some(1), "threshold 1: only the first extra bounce runs");
+}

@@ -148,6 +148,7 @@
 //! * lavapipe's timestamps of compute passes do not bracket their work: `rh_inject` and `rh_bounce` GPU
 //!   times are meaningless there (render passes are fine).
 
+pub mod activity;
 pub mod cascade;
 pub mod dump;
 pub mod extract;
@@ -166,6 +167,7 @@ use bevy::render::render_resource::{SpecializedComputePipelines, SpecializedRend
 use bevy::render::{ExtractSchedule, Render, RenderApp, RenderStartup, RenderSystems};
 use bevy::shader::Shader;
 
+pub use activity::{RadianceHintsActivity, RhVolumeActivity};
 pub use cascade::{CascadeLevel, RadianceHintsCascade};
 pub use settings::{DepthOcclusion, GridSizing, IrradianceReconstruction, RadianceHintsVolume, SecondaryTransport};
 
@@ -279,8 +281,11 @@ impl Plugin for RadianceHintsPlugin {
                     extract::update_geometry_voxels.after(crate::scene::SceneSnapshotSystems::Update),
                 ),
             );
+        // One activity map, written by the render world and read by the main world's panel.
+        let activity = activity::RadianceHintsActivity::default();
+        app.insert_resource(activity.clone());
         if let Some(render_app) = app.get_sub_app_mut(RenderApp) {
-            render_app.insert_resource(shaders);
+            render_app.insert_resource(shaders).insert_resource(activity);
         }
     }
 
@@ -311,6 +316,7 @@ impl Plugin for RadianceHintsPlugin {
                         .after(crate::rsm::prepare_rsm),
                     prepare::prepare_rh_bind_groups.in_set(RenderSystems::PrepareBindGroups),
                     dump::dump_volume.in_set(RenderSystems::Cleanup),
+                    activity::map_bounce_counts.in_set(RenderSystems::Cleanup),
                 ),
             )
             .add_systems(

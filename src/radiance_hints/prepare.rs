@@ -397,6 +397,10 @@ pub struct RhVolumeGpu {
     /// Indirect dispatch arguments, one slot of three `u32` per extra bounce.
     pub args: Buffer,
     pub stats: Buffer,
+    /// Where `stats` (the extra bounces the last full update ran) is read back to the CPU.
+    pub bounce_readback: super::activity::BounceReadback,
+    /// Frames in a row that reused the field.
+    pub frames_reused: u32,
     allocated_for: (UVec3, ShOrder, u32),
     voxel_generation: Option<u64>,
     built_from: Option<BuildKey>,
@@ -603,6 +607,13 @@ impl RhVolumeGpu {
                 storage | BufferUsages::INDIRECT,
             ),
             stats: buffer(device, "diffuse_gi_rh_stats", 16, storage | BufferUsages::COPY_SRC),
+            bounce_readback: super::activity::BounceReadback::new(buffer(
+                device,
+                "diffuse_gi_rh_stats_readback",
+                4,
+                BufferUsages::MAP_READ | BufferUsages::COPY_DST,
+            )),
+            frames_reused: 0,
             allocated_for: (settings.resolution, settings.sh_order, settings.extra_bounces),
             voxel_generation: None,
             built_from: None,
@@ -653,6 +664,7 @@ pub(crate) fn prepare_rh_volumes(
     queue: Res<RenderQueue>,
     frame: Res<FrameCount>,
     emitters: Option<Res<EmitterSamples>>,
+    activity: Res<super::activity::RadianceHintsActivity>,
 ) {
     let state = &mut *state;
     // The emitter samples, uploaded when they change.
@@ -750,6 +762,11 @@ pub(crate) fn prepare_rh_volumes(
             gpu.built_from = Some(key);
         }
         gpu.update_this_frame = gpu.updates_left > 0;
+        gpu.frames_reused = if gpu.update_this_frame { 0 } else { gpu.frames_reused.saturating_add(1) };
+        if gpu.update_this_frame && !gpu.motion_update {
+            // The decide passes count the extra bounces of this update from zero.
+            queue.write_buffer(&gpu.stats, 0, bytemuck::bytes_of(&0u32));
+        }
 
         // Uniforms: one for injection/blend/sampling, one per extra bounce.
         let size = (volume.world_from_local * Vec4::new(1.0, 0.0, 0.0, 0.0)).truncate().length();
@@ -829,6 +846,24 @@ pub(crate) fn prepare_rh_volumes(
         state.volumes.push(gpu);
     }
     state.uniforms.write_buffer(&device, &queue);
+    activity.publish(
+        state
+            .volumes
+            .iter()
+            .map(|v| {
+                let a = super::activity::RhVolumeActivity {
+                    updating: v.update_this_frame,
+                    amortised: v.motion_update,
+                    updates_left: v.updates_left,
+                    frames_reused: v.frames_reused,
+                    extra_bounces_run: v.bounce_readback.last(),
+                    extra_bounces_max: v.settings.extra_bounces,
+                    resolution: v.settings.resolution,
+                };
+                (v.entity, a)
+            })
+            .collect(),
+    );
 
     state.reconstruct_pipelines.clear();
     for camera in cameras.iter().filter(|c| c.0.method == GiMethod::RadianceHints) {

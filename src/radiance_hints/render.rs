@@ -174,6 +174,14 @@ fn update_volumes(
                 pass.dispatch_workgroups(v.workgroups, 1, 1);
                 span.end(&mut pass);
             }
+            // The count of extra bounces this full update ran, for the panel (read back without waiting).
+            if !v.motion_update
+                && v.settings.extra_bounces > 0
+                && v.bounce_readback.state.load(std::sync::atomic::Ordering::Acquire) == super::activity::IDLE
+            {
+                ctx.command_encoder().copy_buffer_to_buffer(&v.stats, 0, &v.bounce_readback.buffer, 0, 4);
+                v.bounce_readback.state.store(super::activity::COPIED, std::sync::atomic::Ordering::Release);
+            }
             v.updates_left = v.updates_left.saturating_sub(1);
             v.first_update = false;
             v.age += 1;

@@ -6,7 +6,9 @@
 //! App::new().add_plugins((DefaultPlugins, DiffuseGiPlugin::default(), DiffuseGiInspectorPlugin));
 //! ```
 //! Adds `bevy_egui`'s `EguiPlugin` unless the app already has it. The panel draws on egui's primary
-//! context (by default the first camera spawned).
+//! context (by default the first camera spawned). F1 hides and shows it; the [`DiffuseGiInspector`]
+//! resource sets the key (or none) and whether it starts visible. A game that wants no panel leaves the
+//! plugin out (the `egui` feature is optional).
 
 use bevy::diagnostic::DiagnosticsStore;
 use bevy::prelude::*;
@@ -17,7 +19,7 @@ use crate::drm::{DrmSettings, DrmSolidAngle};
 use crate::rsm_gather::{RsmGatherSettings, RsmSampleWeights};
 use crate::vpl::VplSettings;
 use crate::light::GiLight;
-use crate::radiance_hints::{DepthOcclusion, GridSizing, IrradianceReconstruction, RadianceHintsVolume};
+use crate::radiance_hints::{DepthOcclusion, GridSizing, IrradianceReconstruction, RadianceHintsActivity, RadianceHintsVolume, RhVolumeActivity};
 use crate::sh::ShOrder;
 
 /// Adds the "Diffuse GI" window.
@@ -32,8 +34,52 @@ impl Plugin for DiffuseGiInspectorPlugin {
         if !app.is_plugin_added::<bevy::render::diagnostic::RenderDiagnosticsPlugin>() {
             app.add_plugins(bevy::render::diagnostic::RenderDiagnosticsPlugin);
         }
-        app.add_systems(EguiPrimaryContextPass, inspector_ui);
+        app.init_resource::<DiffuseGiInspector>()
+            .add_systems(Update, toggle_inspector)
+            .add_systems(EguiPrimaryContextPass, inspector_ui.run_if(|i: Res<DiffuseGiInspector>| i.visible));
     }
+}
+
+/// Whether the "Diffuse GI" window shows, and the key that toggles it.
+#[derive(Resource, Clone, Debug, PartialEq)]
+pub struct DiffuseGiInspector {
+    /// The window shows. Default `true`.
+    pub visible: bool,
+    /// The key that hides and shows it; `None`: no key. Default F1.
+    pub toggle_key: Option<KeyCode>,
+}
+
+impl Default for DiffuseGiInspector {
+    fn default() -> Self {
+        Self { visible: true, toggle_key: Some(KeyCode::F1) }
+    }
+}
+
+fn toggle_inspector(keys: Option<Res<ButtonInput<KeyCode>>>, mut inspector: ResMut<DiffuseGiInspector>) {
+    if let (Some(keys), Some(key)) = (keys, inspector.toggle_key)
+        && keys.just_pressed(key)
+    {
+        inspector.visible = !inspector.visible;
+    }
+}
+
+/// One line on what a volume did in the last frame: updating (and why) or reusing its field, and the
+/// bounces its last full update ran.
+pub fn activity_line(activity: Option<&RhVolumeActivity>) -> String {
+    let Some(a) = activity else {
+        return "inactive: no camera uses Radiance Hints".into();
+    };
+    let state = match (a.updating, a.amortised) {
+        (true, true) => "updating every frame (moving inputs: one bounce a frame)".to_string(),
+        (true, false) => format!("updating ({} updates to converge)", a.updates_left),
+        (false, _) => format!("reused for {} frames", a.frames_reused),
+    };
+    let bounces = match a.extra_bounces_run {
+        Some(k) => format!("bounces run: 1 + {k} extra of {}", a.extra_bounces_max),
+        None if a.extra_bounces_max == 0 => "bounces run: 1 (no extra bounces)".to_string(),
+        None => format!("bounces run: not read back yet (up to 1 + {})", a.extra_bounces_max),
+    };
+    format!("{}×{}×{} hints; {state}; {bounces}", a.resolution.x, a.resolution.y, a.resolution.z)
 }
 
 #[expect(clippy::too_many_arguments, reason = "the panel reads every component and resource it shows")]
@@ -53,9 +99,19 @@ fn inspector_ui(
     diagnostics: Option<Res<DiagnosticsStore>>,
     warnings: Option<Res<crate::DiffuseGiWarnings>>,
     timing: Option<Res<crate::GiDeviceTiming>>,
+    activity: Option<Res<RadianceHintsActivity>>,
 ) -> Result {
     let label = |entity: Entity, name: Option<&Name>| name.map_or_else(|| format!("{entity}"), |n| n.to_string());
-    egui::Window::new("Diffuse GI").default_width(330.0).show(contexts.ctx_mut()?, |ui| {
+    let ctx = contexts.ctx_mut()?;
+    // At the right edge, scrolling within the window's height, so that the view stays visible.
+    let screen = ctx.content_rect();
+    egui::Window::new("Diffuse GI")
+        .default_width(330.0)
+        .pivot(egui::Align2::RIGHT_TOP)
+        .default_pos([screen.right() - 8.0, screen.top() + 8.0])
+        .max_height((screen.height() - 16.0).max(100.0))
+        .vscroll(true)
+        .show(ctx, |ui| {
         egui::CollapsingHeader::new("Cameras").default_open(true).show(ui, |ui| {
             for (entity, name, mut gi, vpl, rsm_gather, drm) in &mut cameras {
                 ui.label(label(entity, name));
@@ -121,6 +177,8 @@ fn inspector_ui(
         });
         egui::CollapsingHeader::new("Radiance Hints volumes").default_open(true).show(ui, |ui| {
             for (entity, name, mut volume, transform) in &mut volumes {
+                let now = activity.as_ref().and_then(|a| a.get(entity));
+                ui.label(activity_line(now.as_ref()));
                 ui.push_id(entity, |ui| volume_ui(ui, &label(entity, name), &mut volume, transform));
                 ui.separator();
             }
