@@ -1,169 +1,34 @@
-//! Radiance Hints on the Cornell box: bounced light that follows a moving light, tuned live.
+//! Radiance Hints (Papaioannou 2011) on the Cornell box: bounced light that follows a moving light, tuned live.
 //!
-//! `cargo run --release --example radiance_hints [-- --scene cornell|cellar|PATH.glb]`
+//! `cargo run --release --example radiance_hints [-- --scene NAME|PATH.glb]`
 //!
-//! Keys: G toggles bounced light, V cycles the debug views, P cycles the presets (low/medium/high),
-//! H toggles half-resolution reconstruction, L starts or stops the light's motion. The egui panel
-//! ("Diffuse GI") tunes every setting and shows the GPU time of each pass.
+//! Keys: G bounced light on/off, M or 1–4 the method (Radiance Hints, VPL, RSM gather, DRM), P the
+//! preset of every method, V the debug view, H half resolution, L the lights' motion, C orbit ↔ fly camera,
+//! F1 the tuning panel ("Diffuse GI": every setting, the volume's activity, warnings, per-pass GPU times).
+//! Orbit: left drag turns, right drag pans, the wheel zooms; fly: W A S D Q E, right drag looks.
 //!
-//! Without a display (no `DISPLAY` or `WAYLAND_DISPLAY`, as on a CI machine) it renders one frame headless
-//! on whatever Vulkan device exists and writes `out/radiance_hints.png` instead.
+//! Without a display (no `DISPLAY` or `WAYLAND_DISPLAY`) it renders one frame headless on whatever Vulkan
+//! device exists and writes `out/radiance_hints.png` instead.
 
 #[path = "common/mod.rs"]
 mod common;
+#[path = "common/app.rs"]
+mod app;
 
-use bevy::camera::Hdr;
-use bevy::core_pipeline::tonemapping::Tonemapping;
 use bevy::prelude::*;
-use bevy::render::diagnostic::RenderDiagnosticsPlugin;
-use bevy_diffuse_gi::prelude::*;
-use bevy_diffuse_gi::scenes::{SceneStatus, StandardScene, StandardScenesPlugin, cornell, mesh_bounds, spawn_standard_scene};
+use bevy_diffuse_gi::camera::GiMethod;
 
 fn main() -> AppExit {
-    let scene = common::example_scene("radiance_hints", "Radiance Hints on the Cornell box (or --scene), tuned live in a window.");
-    if std::env::var_os("DISPLAY").is_none() && std::env::var_os("WAYLAND_DISPLAY").is_none() {
-        return common::render_headless("radiance_hints", scene, GiMethod::RadianceHints);
-    }
-
-    App::new()
-        .add_plugins((
-            DefaultPlugins.set(WindowPlugin {
-                primary_window: Some(Window {
-                    title: "bevy_diffuse_gi — Radiance Hints".into(),
-                    ..default()
-                }),
-                ..default()
-            }),
-            RenderDiagnosticsPlugin,
-            // 1. The plugin.
-            DiffuseGiPlugin::default(),
-            DiffuseGiInspectorPlugin,
-            StandardScenesPlugin,
-            common::CiCapturePlugin,
-        ))
-        .insert_resource(Example { scene, moving: true, preset: 1 })
-        .add_systems(Startup, setup)
-        .add_systems(Update, (fit_volume, controls, move_light))
-        .add_systems(bevy_egui::EguiPrimaryContextPass, help_window)
-        .run()
-}
-
-#[derive(Resource)]
-struct Example {
-    scene: StandardScene,
-    moving: bool,
-    preset: usize,
-}
-
-const PRESETS: [(&str, RadianceHintsVolume); 3] = [
-    ("low", RadianceHintsVolume::LOW),
-    ("medium", RadianceHintsVolume::MEDIUM),
-    ("high", RadianceHintsVolume::HIGH),
-];
-
-fn setup(
-    mut commands: Commands,
-    example: Res<Example>,
-    asset_server: Res<AssetServer>,
-    mut meshes: ResMut<Assets<Mesh>>,
-    mut materials: ResMut<Assets<StandardMaterial>>,
-) {
-    commands.insert_resource(bevy::light::GlobalAmbientLight { brightness: 0.0, ..default() });
-    if example.scene != StandardScene::Cornell {
-        // Other scenes come with their lights (GiLight added) and camera; the volume is fitted once loaded.
-        spawn_standard_scene(&mut commands, &asset_server, &mut meshes, &mut materials, &example.scene, None);
-        return;
-    }
-    // An existing scene: the Cornell box's walls and blocks...
-    cornell::spawn_cornell_geometry(&mut commands, &mut meshes, &mut materials);
-    commands.insert_resource(SceneStatus::Ready);
-    // 2. ...a camera with `DiffuseGi`...
-    commands.spawn((cornell::cornell_camera(cornell::CORNELL_EV100), Hdr, Tonemapping::TonyMcMapface, DiffuseGi::default()));
-    // 3. ...a light with `GiLight` (and shadows)...
-    commands.spawn((cornell::cornell_spot_light(), GiLight::default(), Name::new("spot light")));
-    // 4. ...and a volume where Radiance Hints apply: the box, 2 m across.
-    commands.spawn((RadianceHintsVolume::MEDIUM, Transform::from_scale(Vec3::splat(2.02)), Name::new("RH volume")));
-}
-
-/// For loaded scenes: a camera component and a volume around the meshes once they have bounds.
-fn fit_volume(
-    mut commands: Commands,
-    status: Res<SceneStatus>,
-    volumes: Query<(), With<RadianceHintsVolume>>,
-    cameras: Query<Entity, (With<Camera3d>, Without<DiffuseGi>)>,
-    meshes: Query<(&bevy::camera::primitives::Aabb, &GlobalTransform), With<Mesh3d>>,
-) {
-    if *status != SceneStatus::Ready || !volumes.is_empty() {
-        return;
-    }
-    let Some((lo, hi)) = mesh_bounds(meshes) else {
-        return;
-    };
-    for camera in &cameras {
-        commands.entity(camera).insert((DiffuseGi::default(), Hdr, Tonemapping::TonyMcMapface));
-    }
-    let size = ((hi - lo) * 1.002).max(Vec3::splat(0.05));
-    commands.spawn((
-        RadianceHintsVolume::MEDIUM.with_cubic_cells(size),
-        Transform::from_translation((lo + hi) * 0.5).with_scale(size),
-        Name::new("RH volume"),
-    ));
-}
-
-fn controls(
-    keys: Res<ButtonInput<KeyCode>>,
-    mut example: ResMut<Example>,
-    mut cameras: Query<&mut DiffuseGi>,
-    mut volumes: Query<(&mut RadianceHintsVolume, &Transform)>,
-) {
-    for mut gi in &mut cameras {
-        if keys.just_pressed(KeyCode::KeyG) {
-            gi.enabled = !gi.enabled;
-        }
-        if keys.just_pressed(KeyCode::KeyV) {
-            let views = GiDebugView::ALL;
-            let i = views.iter().position(|v| *v == gi.debug_view).unwrap_or(0);
-            gi.debug_view = views[(i + 1) % views.len()];
-        }
-        if keys.just_pressed(KeyCode::KeyH) {
-            gi.half_resolution = !gi.half_resolution;
-        }
-    }
-    if keys.just_pressed(KeyCode::KeyP) {
-        example.preset = (example.preset + 1) % PRESETS.len();
-        for (mut volume, transform) in &mut volumes {
-            *volume = PRESETS[example.preset].1.clone().with_cubic_cells(transform.scale);
-        }
-    }
-    if keys.just_pressed(KeyCode::KeyL) {
-        example.moving = !example.moving;
-    }
-}
-
-/// Swings the GI lights in a slow circle, so the bounced light has to follow.
-fn move_light(time: Res<Time>, example: Res<Example>, mut lights: Query<&mut Transform, With<GiLight>>, mut start: Local<Option<Vec<Vec3>>>) {
-    let start = start.get_or_insert_with(|| lights.iter().map(|t| t.translation).collect());
-    if !example.moving {
-        return;
-    }
-    let t = time.elapsed_secs() * 0.4;
-    for (mut transform, origin) in lights.iter_mut().zip(start.iter()) {
-        transform.translation = *origin + Vec3::new(0.5 * t.cos(), 0.0, 0.5 * t.sin()) * 0.6;
-    }
-}
-
-/// The keys, in a small egui window beside the tuning panel.
-fn help_window(mut contexts: bevy_egui::EguiContexts, example: Res<Example>) -> Result {
-    bevy_egui::egui::Window::new("Keys").anchor(bevy_egui::egui::Align2::LEFT_BOTTOM, [8.0, -8.0]).show(
-        contexts.ctx_mut()?,
-        |ui| {
-            ui.label(format!("scene {} — preset {}", example.scene.name(), PRESETS[example.preset].0));
-            ui.label("G  bounced light on/off");
-            ui.label("V  next debug view");
-            ui.label("P  next preset");
-            ui.label("H  half-resolution reconstruction");
-            ui.label(format!("L  light motion ({})", if example.moving { "on" } else { "off" }));
+    app::run(
+        app::ExampleSpec {
+            tool: "radiance_hints",
+            title: "Radiance Hints",
+            scene: "cornell",
+            method: GiMethod::RadianceHints,
+            light_motion: true,
+            extra_help: &[],
+            ci: app::CiMode::OwnMethod,
         },
-    );
-    Ok(())
+        |_| {},
+    )
 }

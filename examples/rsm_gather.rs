@@ -1,23 +1,35 @@
-//! The RSM gather (Dachsbacher & Stamminger 2005) on the Cornell box, tuned live.
+//! The RSM gather (Dachsbacher & Stamminger 2005) on the Cornell box, tuned live. `--scene near_light`
+//! hangs a block just below the light (the case the gather's sample weights get wrong).
 //!
-//! `cargo run --release --example rsm_gather [-- --scene cornell|cellar|sponza_like|near_light|PATH.glb]`
+//! `cargo run --release --example rsm_gather [-- --scene NAME|PATH.glb]`
 //!
-//! Keys: G toggles bounced light, M switches the method at run time, P cycles the presets, W switches
-//! the sample weights (density ξ₁ ↔ the paper's ξ₁²), V cycles the debug views, H toggles half
-//! resolution, B hangs a block next to the light, L starts or stops the light's motion. The egui panel
-//! ("Diffuse GI") tunes every setting and shows the GPU time of each pass.
+//! Keys: G bounced light on/off, M or 1–4 the method (Radiance Hints, VPL, RSM gather, DRM), P the
+//! preset of every method, V the debug view, H half resolution, L the lights' motion, C orbit ↔ fly camera,
+//! F1 the tuning panel ("Diffuse GI": every setting, the volume's activity, warnings, per-pass GPU times).
+//! Orbit: left drag turns, right drag pans, the wheel zooms; fly: W A S D Q E, right drag looks.
 //!
-//! Without a display (no `DISPLAY` or `WAYLAND_DISPLAY`, as on a CI machine) it renders one frame headless
-//! on whatever Vulkan device exists and writes `out/rsm_gather.png` instead.
+//! Without a display (no `DISPLAY` or `WAYLAND_DISPLAY`) it renders one frame headless on whatever Vulkan
+//! device exists and writes `out/rsm_gather.png` instead.
 
 #[path = "common/mod.rs"]
 mod common;
-#[path = "common/one_bounce.rs"]
-mod one_bounce;
+#[path = "common/app.rs"]
+mod app;
 
 use bevy::prelude::*;
 use bevy_diffuse_gi::camera::GiMethod;
 
 fn main() -> AppExit {
-    one_bounce::run("rsm_gather", "bevy_diffuse_gi — RSM gather", GiMethod::RsmGather)
+    app::run(
+        app::ExampleSpec {
+            tool: "rsm_gather",
+            title: "RSM gather",
+            scene: "cornell",
+            method: GiMethod::RsmGather,
+            light_motion: false,
+            extra_help: &[],
+            ci: app::CiMode::OwnMethod,
+        },
+        |_| {},
+    )
 }

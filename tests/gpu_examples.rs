@@ -1,8 +1,9 @@
 //! Every windowed example runs in a real window on lavapipe under a virtual X display (Xvfb; `.ci/setup`
 //! installs it) with the fixed-frame harness of `examples/common` (`CiCapturePlugin`): a fixed frame
-//! time, a screenshot of the window at frame 40, then exit. Fails when an example panics or exits with an
-//! error, logs an error, shows an all-black 3D view, shows the same image as without bounced light, or
-//! has no tuning panel in its screenshot. Screenshots are left in `target/example-screenshots/`.
+//! time, a screenshot with bounced light held off, then one per method (or, for `showcase`, per slide),
+//! then exit. Fails when an example panics or exits with an error, logs an error, shows an all-black 3D
+//! view, shows no more light with a method than without bounced light, or has no tuning panel in a
+//! screenshot. Screenshots are left in `target/example-screenshots/`.
 #![cfg(all(feature = "gpu_tests", feature = "egui"))]
 
 mod common;
@@ -10,10 +11,30 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-/// The windowed examples and the method each starts with.
-const EXAMPLES: &[&str] = &["radiance_hints", "vpl_ssbc", "dynamic", "rsm_gather", "direct_radiance_mapping"];
+/// Every method, as the examples label their screenshots.
+const METHODS: &[&str] = &["rh", "vpl", "rsm", "drm"];
 
-/// The virtual screen; Bevy's default window fills it.
+/// The windowed examples and the screenshots each takes after the no-GI one; `true`: each shows the scene
+/// of the no-GI screenshot (so it must be brighter than it).
+const EXAMPLES: &[(&str, &[&str], bool)] = &[
+    ("cornell", METHODS, true),
+    ("cellar", METHODS, true),
+    ("sponza_like", METHODS, true),
+    ("open_field", METHODS, true),
+    ("dynamic", METHODS, true),
+    ("radiance_hints", &["rh"], true),
+    ("vpl_ssbc", &["vpl"], true),
+    ("rsm_gather", &["rsm"], true),
+    ("direct_radiance_mapping", &["drm"], true),
+    // The slides: a scene each; only the first shows the no-GI screenshot's scene (cornell).
+    (
+        "showcase",
+        &["cornell_rh", "cellar_vpl", "sponza_like_rsm", "open_field_drm", "dynamic_vpl", "emissive_panel_rh"],
+        false,
+    ),
+];
+
+/// The virtual screen; the harness makes the window 800×450 inside it.
 const WIDTH: u32 = 1280;
 const HEIGHT: u32 = 720;
 
@@ -28,37 +49,37 @@ fn screenshot_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("target/example-screenshots")
 }
 
-/// Runs `example` under `xvfb-run` until it has saved its screenshot; returns the RGB image and the log.
-fn run_example(example: &str, no_gi: bool) -> (image::RgbImage, String) {
+/// Runs `example` under `xvfb-run` until it has saved its screenshots (`no_gi`, then `steps`); returns
+/// them as RGB images, in that order.
+fn run_example(example: &str, steps: &[&str]) -> Vec<(String, image::RgbImage)> {
     let binary = example_binary(example);
     assert!(binary.is_file(), "{} was not built", binary.display());
     std::fs::create_dir_all(screenshot_dir()).unwrap();
-    let shot = screenshot_dir().join(format!("{example}{}.png", if no_gi { "_no_gi" } else { "" }));
+    let stem = screenshot_dir().join(example);
     let _guard = common::render_lock();
-    let mut command = Command::new("xvfb-run");
-    command
+    let output = Command::new("xvfb-run")
         .args(["-a", "-s", &format!("-screen 0 {WIDTH}x{HEIGHT}x24")])
         .arg("timeout")
         .arg("600")
         .arg(&binary)
-        .env("DIFFUSE_GI_CAPTURE", &shot)
+        .env("DIFFUSE_GI_CAPTURE", &stem)
         .env("WGPU_BACKEND", "vulkan")
         .env("RUST_LOG", "warn")
-        .current_dir(env!("CARGO_MANIFEST_DIR"));
-    if no_gi {
-        command.env("DIFFUSE_GI_NO_GI", "1");
-    } else {
-        command.env_remove("DIFFUSE_GI_NO_GI");
-    }
-    let output = command.output().unwrap_or_else(|e| {
-        panic!("cannot run xvfb-run ({e}); .ci/setup installs Xvfb (Debian/Ubuntu package xvfb)")
-    });
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run xvfb-run ({e}); .ci/setup installs Xvfb (Debian/Ubuntu package xvfb)"));
     let log = format!("{}{}", String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr));
     assert!(output.status.success(), "{example} exited with {}:\n{log}", output.status);
     let errors: Vec<&str> = log.lines().filter(|l| l.contains(" ERROR ") || l.contains("panicked")).collect();
     assert!(errors.is_empty(), "{example} logged errors:\n{}", errors.join("\n"));
-    let image = image::open(&shot).unwrap_or_else(|e| panic!("{example}: no screenshot {}: {e}", shot.display())).to_rgb8();
-    (image, log)
+    std::iter::once("no_gi")
+        .chain(steps.iter().copied())
+        .map(|label| {
+            let shot = PathBuf::from(format!("{}_{label}.png", stem.display()));
+            let image = image::open(&shot).unwrap_or_else(|e| panic!("{example}: no screenshot {}: {e}", shot.display()));
+            (label.to_string(), image.to_rgb8())
+        })
+        .collect()
 }
 
 /// Mean brightness (0–255) of the whole screenshot.
@@ -80,16 +101,21 @@ fn panel_share(image: &image::RgbImage) -> f64 {
 
 #[test]
 fn every_windowed_example_runs_with_its_panel_and_adds_bounced_light() {
-    for example in EXAMPLES {
-        let (lit, _) = run_example(example, false);
-        let (unlit, _) = run_example(example, true);
-        let brightness = mean(&lit);
-        assert!(brightness > 10.0, "{example}: the window is black ({brightness:.1})");
-        let panel = panel_share(&lit);
-        assert!(panel > 0.1, "{example}: no tuning panel in its screenshot (egui fill on {:.1} % of it)", 100.0 * panel);
-        // Bounced light adds light: the screenshot with it is brighter than the one without.
-        let gain = brightness - mean(&unlit);
-        assert!(gain > 0.5, "{example}: the image with bounced light is not brighter than without ({gain:.2})");
-        eprintln!("{example}: mean {brightness:.1}, +{gain:.2} from bounced light, panel {:.1} %", 100.0 * panel);
+    for (example, steps, same_scene) in EXAMPLES {
+        let shots = run_example(example, steps);
+        let unlit = mean(&shots[0].1);
+        assert!(unlit > 5.0, "{example}: the window without bounced light is black ({unlit:.1})");
+        for (label, image) in &shots[1..] {
+            let brightness = mean(image);
+            assert!(brightness > 10.0, "{example} {label}: the window is black ({brightness:.1})");
+            let panel = panel_share(image);
+            assert!(panel > 0.1, "{example} {label}: no tuning panel in its screenshot (egui fill on {:.1} % of it)", 100.0 * panel);
+            // Bounced light adds light: the screenshot with it is brighter than the one without.
+            let gain = brightness - unlit;
+            if *same_scene {
+                assert!(gain > 0.5, "{example} {label}: the image with bounced light is not brighter than without ({gain:.2})");
+            }
+            eprintln!("{example} {label}: mean {brightness:.1}, {gain:+.2} from bounced light, panel {:.1} %", 100.0 * panel);
+        }
     }
 }

@@ -46,11 +46,15 @@ struct ExampleCli {
     scene: StandardScene,
 }
 
-/// The scene a windowed example `tool` is asked to show (`--scene`, default `cornell`). `--help`
+/// The scene a windowed example `tool` is asked to show (`--scene`, default `default_scene`). `--help`
 /// exits with status 0, bad input with clap's message and status 2.
-pub fn example_scene(tool: &'static str, about: &'static str) -> StandardScene {
+pub fn example_scene(tool: &'static str, about: &'static str, default_scene: &'static str) -> StandardScene {
     use clap::{CommandFactory, FromArgMatches};
-    let matches = ExampleCli::command().name(tool).about(about).get_matches();
+    let matches = ExampleCli::command()
+        .name(tool)
+        .about(about)
+        .mut_arg("scene", |arg| arg.default_value(default_scene))
+        .get_matches();
     ExampleCli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit()).scene
 }
 
@@ -122,58 +126,114 @@ pub fn frame_ms(report: &HeadlessReport, timed: usize) -> f64 {
 }
 
 /// The fixed-frame harness CI runs every windowed example with, in a real window (Xvfb) on lavapipe.
-/// Inert unless `DIFFUSE_GI_CAPTURE=OUT.png` is set; then time advances a fixed 1/60 s per frame, a
-/// screenshot of the window (3D view and panel) is saved at frame `DIFFUSE_GI_CAPTURE_FRAME` (default
-/// 40) and the app exits once it is written. `DIFFUSE_GI_NO_GI=1` keeps every camera's bounced light off,
-/// for the test's "unchanged from no GI" comparison.
+/// Inert unless `DIFFUSE_GI_CAPTURE=DIR/NAME` is set; then time advances a fixed 1/60 s per frame and
+/// screenshots of the window (3D view and panel) are saved:
+/// * `DIR/NAME_no_gi.png` at frame `DIFFUSE_GI_CAPTURE_FRAME` (default 30), with every camera's bounced
+///   light held off until then;
+/// * then, with bounced light on, one `DIR/NAME_{label}.png` every `DIFFUSE_GI_CAPTURE_INTERVAL` frames
+///   (default 20) per label of the example's [`CiSteps`] (one step, `gi`, without it). Before step `i`
+///   the harness sends [`CiStep`]`(i)`, which the example answers by showing what the label says (a method,
+///   a scene).
+///
+/// The app exits once every screenshot is written.
 pub struct CiCapturePlugin;
+
+/// The labels of the example's CI screenshots after the no-GI one (see [`CiCapturePlugin`]).
+#[derive(Resource, Clone, Debug)]
+pub struct CiSteps(pub Vec<String>);
+
+/// Sent by the CI harness before its screenshot of step `.0`.
+#[derive(Message, Clone, Copy, Debug)]
+pub struct CiStep(pub usize);
 
 #[derive(Resource)]
 struct CiCapture {
-    path: PathBuf,
-    frame: u32,
-    no_gi: bool,
+    stem: PathBuf,
+    first: u32,
+    interval: u32,
     count: u32,
+    written: Vec<PathBuf>,
 }
 
 impl Plugin for CiCapturePlugin {
     fn build(&self, app: &mut App) {
-        let Some(path) = std::env::var_os("DIFFUSE_GI_CAPTURE").map(PathBuf::from) else {
+        app.add_message::<CiStep>();
+        let Some(stem) = std::env::var_os("DIFFUSE_GI_CAPTURE").map(PathBuf::from) else {
             return;
         };
-        let frame = std::env::var("DIFFUSE_GI_CAPTURE_FRAME").ok().and_then(|f| f.parse().ok()).unwrap_or(40);
-        let no_gi = std::env::var_os("DIFFUSE_GI_NO_GI").is_some();
+        let number = |name: &str, default: u32| std::env::var(name).ok().and_then(|f| f.parse().ok()).unwrap_or(default);
+        let first = number("DIFFUSE_GI_CAPTURE_FRAME", 30).max(2);
+        let interval = number("DIFFUSE_GI_CAPTURE_INTERVAL", 20).max(2);
         app.insert_resource(bevy::time::TimeUpdateStrategy::ManualDuration(std::time::Duration::from_secs_f64(1.0 / 60.0)))
-            .insert_resource(CiCapture { path, frame, no_gi, count: 0 })
+            .insert_resource(CiCapture { stem, first, interval, count: 0, written: Vec::new() })
+            .add_systems(Startup, ci_window_size)
             .add_systems(Last, ci_capture);
+    }
+}
+
+/// The window CI renders: 800×450 (`DIFFUSE_GI_CAPTURE_SIZE=WxH` sets another), a third of the
+/// default's pixels, because lavapipe's frame time grows with them.
+fn ci_window_size(mut windows: Query<&mut Window, With<bevy::window::PrimaryWindow>>) {
+    let size = std::env::var("DIFFUSE_GI_CAPTURE_SIZE")
+        .ok()
+        .and_then(|s| s.split_once('x').and_then(|(w, h)| Some((w.parse().ok()?, h.parse().ok()?))))
+        .unwrap_or((800u32, 450u32));
+    for mut window in &mut windows {
+        window.resolution.set(size.0 as f32, size.1 as f32);
     }
 }
 
 fn ci_capture(
     mut commands: Commands,
     mut capture: ResMut<CiCapture>,
+    steps: Option<Res<CiSteps>>,
     mut cameras: Query<&mut bevy_diffuse_gi::camera::DiffuseGi>,
+    mut step: MessageWriter<CiStep>,
     mut exit: MessageWriter<AppExit>,
 ) {
     use bevy::render::view::screenshot::{Screenshot, save_to_disk};
+    let labels = steps.map_or_else(|| vec!["gi".to_string()], |s| s.0.clone());
     capture.count += 1;
-    if capture.no_gi {
+    let (count, first, interval) = (capture.count, capture.first, capture.interval);
+    let shoot = |commands: &mut Commands, capture: &mut CiCapture, label: &str| {
+        let path = PathBuf::from(format!("{}_{label}.png", capture.stem.display()));
+        let _ = std::fs::remove_file(&path);
+        commands.spawn(Screenshot::primary_window()).observe(save_to_disk(path.clone()));
+        capture.written.push(path);
+    };
+    if count <= first {
         for mut gi in &mut cameras {
             if gi.enabled {
                 gi.enabled = false;
             }
         }
+        if count == first {
+            shoot(&mut commands, &mut capture, "no_gi");
+        }
+        return;
     }
-    if capture.count == capture.frame {
-        let _ = std::fs::remove_file(&capture.path);
-        commands.spawn(Screenshot::primary_window()).observe(save_to_disk(capture.path.clone()));
+    let since = count - first;
+    if since == 1 {
+        for mut gi in &mut cameras {
+            gi.enabled = true;
+        }
+    }
+    // Step i: announced one frame after the previous screenshot, shot `interval` frames after it.
+    let i = ((since - 1) / interval) as usize;
+    if (since - 1) % interval == 0 && i < labels.len() {
+        step.write(CiStep(i));
+    }
+    if since % interval == 0 && (since / interval) as usize <= labels.len() {
+        let label = labels[(since / interval) as usize - 1].clone();
+        shoot(&mut commands, &mut capture, &label);
     }
     // Saving happens a few frames later, on the render thread's readback.
-    if capture.count > capture.frame && capture.path.exists() {
+    let last = first + interval * labels.len() as u32;
+    if count > last && capture.written.iter().all(|p| p.exists()) {
         exit.write(AppExit::Success);
     }
-    if capture.count > capture.frame + 600 {
-        error!("the screenshot for {} never arrived", capture.path.display());
+    if count > last + 600 {
+        error!("the screenshots {:?} never all arrived", capture.written);
         exit.write(AppExit::error());
     }
 }

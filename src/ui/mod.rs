@@ -72,7 +72,7 @@ pub fn activity_line(activity: Option<&RhVolumeActivity>) -> String {
     let state = match (a.updating, a.amortised) {
         (true, true) => "updating every frame (moving inputs: one bounce a frame)".to_string(),
         (true, false) => format!("updating ({} updates to converge)", a.updates_left),
-        (false, _) => format!("reused for {} frames", a.frames_reused),
+        (false, _) => format!("reused for {} frame{}", a.frames_reused, if a.frames_reused == 1 { "" } else { "s" }),
     };
     let bounces = match a.extra_bounces_run {
         Some(k) => format!("bounces run: 1 + {k} extra of {}", a.extra_bounces_max),

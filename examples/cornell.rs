@@ -1,0 +1,34 @@
+//! The Cornell box (`shared/SCENES.md`): a 2 m box lit by one spot light, every method a key away.
+//!
+//! `cargo run --release --example cornell`
+//!
+//! Keys: G bounced light on/off, M or 1–4 the method (Radiance Hints, VPL, RSM gather, DRM), P the
+//! preset of every method, V the debug view, H half resolution, L the lights' motion, C orbit ↔ fly camera,
+//! F1 the tuning panel ("Diffuse GI": every setting, the volume's activity, warnings, per-pass GPU times).
+//! Orbit: left drag turns, right drag pans, the wheel zooms; fly: W A S D Q E, right drag looks.
+//!
+//! Without a display (no `DISPLAY` or `WAYLAND_DISPLAY`) it renders one frame headless on whatever Vulkan
+//! device exists and writes `out/cornell.png` instead.
+
+#[path = "common/mod.rs"]
+mod common;
+#[path = "common/app.rs"]
+mod app;
+
+use bevy::prelude::*;
+use bevy_diffuse_gi::camera::GiMethod;
+
+fn main() -> AppExit {
+    app::run(
+        app::ExampleSpec {
+            tool: "cornell",
+            title: "Cornell box",
+            scene: "cornell",
+            method: GiMethod::RadianceHints,
+            light_motion: false,
+            extra_help: &[],
+            ci: app::CiMode::AllMethods,
+        },
+        |_| {},
+    )
+}
