@@ -384,7 +384,7 @@ fn keys_window(
     cameras: Query<(&DiffuseGi, Option<&CameraRig>)>,
 ) -> Result {
     use bevy_egui::egui;
-    egui::Window::new("Keys").anchor(egui::Align2::LEFT_BOTTOM, [8.0, -8.0]).show(contexts.ctx_mut()?, |ui| {
+    egui::Window::new("Keys").anchor(egui::Align2::LEFT_BOTTOM, [8.0, -8.0]).min_width(440.0).show(contexts.ctx_mut()?, |ui| {
         ui.label(format!("{} — scene {} — preset {}", example.spec.title, example.scene.name(), PRESETS[example.preset]));
         for (gi, rig) in &cameras {
             ui.label(format!(

@@ -133,7 +133,7 @@ pub fn frame_ms(report: &HeadlessReport, timed: usize) -> f64 {
 /// * then, with bounced light on, one `DIR/NAME_{label}.png` every `DIFFUSE_GI_CAPTURE_INTERVAL` frames
 ///   (default 20) per label of the example's [`CiSteps`] (one step, `gi`, without it). Before step `i`
 ///   the harness sends [`CiStep`]`(i)`, which the example answers by showing what the label says (a method,
-///   a scene).
+///   a scene). `DIFFUSE_GI_CAPTURE_STEPS=N` keeps the first `N` steps (the README's pictures take one).
 ///
 /// The app exits once every screenshot is written.
 pub struct CiCapturePlugin;
@@ -192,7 +192,10 @@ fn ci_capture(
     mut exit: MessageWriter<AppExit>,
 ) {
     use bevy::render::view::screenshot::{Screenshot, save_to_disk};
-    let labels = steps.map_or_else(|| vec!["gi".to_string()], |s| s.0.clone());
+    let mut labels = steps.map_or_else(|| vec!["gi".to_string()], |s| s.0.clone());
+    if let Some(n) = std::env::var("DIFFUSE_GI_CAPTURE_STEPS").ok().and_then(|n| n.parse::<usize>().ok()) {
+        labels.truncate(n.max(1));
+    }
     capture.count += 1;
     let (count, first, interval) = (capture.count, capture.first, capture.interval);
     let shoot = |commands: &mut Commands, capture: &mut CiCapture, label: &str| {

@@ -71,7 +71,7 @@ pub fn activity_line(activity: Option<&RhVolumeActivity>) -> String {
     };
     let state = match (a.updating, a.amortised) {
         (true, true) => "updating every frame (moving inputs: one bounce a frame)".to_string(),
-        (true, false) => format!("updating ({} updates to converge)", a.updates_left),
+        (true, false) => format!("updating ({} update{} to converge)", a.updates_left, if a.updates_left == 1 { "" } else { "s" }),
         (false, _) => format!("reused for {} frame{}", a.frames_reused, if a.frames_reused == 1 { "" } else { "s" }),
     };
     let bounces = match a.extra_bounces_run {
