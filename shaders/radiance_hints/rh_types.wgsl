@@ -56,6 +56,8 @@ struct RhVolume {
     occupancy_resolution: vec4<u32>,
     // Range of the reconstruction's near-field occlusion in metres (0: off).
     near_field_range: f32,
+    // Cells the volume moved since the last frame (xyz; `scroll.wgsl`), when it moved by whole cells.
+    scroll: vec4<i32>,
 }
 
 // Volume-local position → occupancy-grid coordinates (voxel v spans [v, v + 1)).

@@ -12,8 +12,8 @@
 //! # Cost
 //! Each level costs what a volume of its hint count costs (memory, updates, voxelisation); the
 //! per-pixel reconstruction runs once per level that covers the pixel. A still camera in a still scene
-//! updates nothing. A level that moves is recomputed in full (not scrolled) and blended in over the
-//! temporal blend's few updates.
+//! updates nothing. A level that moves pays for one slab of voxels on the CPU, a copy of its field and
+//! the amortised updates while the camera keeps moving.
 
 use bevy::prelude::*;
 

@@ -155,10 +155,18 @@ pub(crate) fn update_geometry_voxels(
         if voxels.is_some_and(|v| v.key == key) {
             continue;
         }
-        // The same volume one geometry change later: redo only the cells the change touched.
+        // The same volume one geometry change later: redo only the cells the change touched. The same
+        // volume moved by whole cells (a cascade level following its camera): scroll, voxelising only
+        // the slab that came in.
         let data = match voxels {
             Some(v) if v.key.1 == key.1 && v.key.2 == key.2 && v.key.0 + 1 == key.0 => {
                 voxelize_update(&snapshot, matrix, settings.resolution, &v.data, &snapshot.last_change.dirty)
+            }
+            Some(v) if v.key.0 == key.0 && v.key.2 == key.2 => {
+                let old = Mat4::from_cols_array(&v.key.1.map(f32::from_bits));
+                super::voxelize::scroll_shift(old, matrix, settings.resolution)
+                    .and_then(|shift| super::voxelize::voxelize_scrolled(&snapshot, matrix, settings.resolution, &v.data, shift))
+                    .unwrap_or_else(|| voxelize(&snapshot, matrix, settings.resolution))
             }
             _ => voxelize(&snapshot, matrix, settings.resolution),
         };

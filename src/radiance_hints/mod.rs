@@ -131,8 +131,7 @@
 //!   sunlit open ground, where the field holds only the ground's own upward light, it gives a surface
 //!   facing up a third of the field's mean irradiance (the linear form gives none): `open_field`
 //!   0.48 → 0.56. Closed rooms gain from it ([`IrradianceReconstruction::Linear`] is the other choice).
-//! * A cascade level that moves is recomputed, not scrolled; 20 cm door jambs (thinner than a cell) in
-//!   `cellar` read too little light.
+//! * 20 cm door jambs (thinner than a cell) in `cellar` read too little light.
 //! * Near-field occlusion below the cell size (boxes on floors) is not modelled by default: the voxel
 //!   rays of [`near_field_occlusion`](RadianceHintsVolume::near_field_occlusion) raised the error where
 //!   measured on five of six scenes (`cornell` 0.147 → 0.245), the voxels being too coarse for contact
@@ -192,6 +191,7 @@ pub struct RhShaders {
     pub blend: Handle<Shader>,
     pub export: Handle<Shader>,
     pub visibility: Handle<Shader>,
+    pub scroll: Handle<Shader>,
     pub reconstruct: Handle<Shader>,
     /// Import libraries, kept alive.
     pub libraries: Vec<Handle<Shader>>,
@@ -242,6 +242,7 @@ impl Plugin for RadianceHintsPlugin {
                 "radiance_hints/visibility.wgsl",
                 include_str!("../../shaders/radiance_hints/visibility.wgsl"),
             ),
+            scroll: crate::add_shader(app, "radiance_hints/scroll.wgsl", include_str!("../../shaders/radiance_hints/scroll.wgsl")),
             reconstruct: crate::add_shader(
                 app,
                 "radiance_hints/reconstruct.wgsl",

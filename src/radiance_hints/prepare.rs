@@ -2,7 +2,7 @@
 
 use bevy::diagnostic::FrameCount;
 use bevy::core_pipeline::FullscreenShader;
-use bevy::math::{Mat4, UVec3, UVec4, Vec3, Vec4};
+use bevy::math::{IVec3, IVec4, Mat4, UVec3, UVec4, Vec3, Vec4};
 use bevy::platform::collections::HashMap;
 use bevy::prelude::*;
 use bevy::render::render_resource::binding_types::{
@@ -57,6 +57,8 @@ pub struct RhVolumeUniform {
     pub blend_faces: u32,
     pub occupancy_resolution: UVec4,
     pub near_field_range: f32,
+    /// Cells the volume moved by since the last frame, when it moved by whole cells (`scroll.wgsl`).
+    pub scroll: IVec4,
 }
 
 /// The box of occupancy voxels whose visibility masks a dispatch redoes (`VisibilityRegion` in
@@ -98,6 +100,9 @@ pub enum RhPass {
     Export,
     /// The per-voxel hint masks of the reconstruction (`visibility.wgsl`).
     Visibility,
+    /// Moving the displayed field with a volume that moved by whole cells (`scroll.wgsl`): the SH field,
+    /// or the packed irradiance.
+    Scroll { packed: bool },
 }
 
 /// Key of the compute pipelines.
@@ -142,6 +147,8 @@ pub struct RhPipelines {
     pub bounce_output_layout: BindGroupLayoutDescriptor,
     pub decide_layout: BindGroupLayoutDescriptor,
     pub blend_layout: BindGroupLayoutDescriptor,
+    /// Group 0 of the scroll: uniform, the copy before the move, the buffer to scroll.
+    pub scroll_layout: BindGroupLayoutDescriptor,
     pub export_layout: BindGroupLayoutDescriptor,
     /// Group 0 of the reconstruction: view, depth, G-buffer.
     pub reconstruct_view_layout: BindGroupLayoutDescriptor,
@@ -206,6 +213,10 @@ impl FromWorld for RhPipelines {
             blend_layout: BindGroupLayoutDescriptor::new(
                 "diffuse_gi_rh_blend_layout",
                 &BindGroupLayoutEntries::sequential(compute, (uniform(), ro(), rw(), rw())),
+            ),
+            scroll_layout: BindGroupLayoutDescriptor::new(
+                "diffuse_gi_rh_scroll_layout",
+                &BindGroupLayoutEntries::sequential(compute, (uniform(), ro(), rw())),
             ),
             export_layout: BindGroupLayoutDescriptor::new(
                 "diffuse_gi_rh_export_layout",
@@ -294,6 +305,12 @@ impl SpecializedComputePipeline for RhPipelines {
                 ],
                 &self.shaders.visibility,
                 "visibility_masks",
+            ),
+            RhPass::Scroll { packed } => (
+                "diffuse_gi_rh_scroll_pipeline",
+                vec![self.scroll_layout.clone()],
+                &self.shaders.scroll,
+                if packed { "scroll_packed" } else { "scroll_field" },
             ),
             RhPass::Export => (
                 "diffuse_gi_rh_export_pipeline",
@@ -416,6 +433,9 @@ pub struct RhVolumeGpu {
     pub nested: bool,
     /// Edge of a cell's diagonal, metres (coarser volumes are drawn first).
     pub cell_diagonal: f32,
+    /// The volume moved by whole cells since the last frame: its displayed field is scrolled with it
+    /// before this frame's update (`scroll.wgsl`) instead of being shown a cell off.
+    pub scroll: Option<IVec3>,
     /// This frame's update is an amortised one (the inputs changed this frame, as they do every frame
     /// while a light or mesh moves): injection plus a single bounce gathered from the displayed field,
     /// so bounces accumulate over frames instead of all running every frame.
@@ -438,6 +458,8 @@ pub struct RhVolumePipelines {
     pub blend: CachedComputePipelineId,
     pub export: CachedComputePipelineId,
     pub visibility: CachedComputePipelineId,
+    pub scroll_field: CachedComputePipelineId,
+    pub scroll_packed: CachedComputePipelineId,
 }
 
 /// Bind groups of one volume, rebuilt every frame (the uniform buffer may move).
@@ -450,6 +472,8 @@ pub struct RhVolumeBindGroups {
     pub bounce: [(BindGroup, BindGroup); 2],
     pub decide: BindGroup,
     pub blend: BindGroup,
+    /// The scroll of the SH field and of the packed irradiance, each from its copy in `delta[0]`.
+    pub scroll: [BindGroup; 2],
     /// The visibility-mask pass's output (group 0).
     pub visibility_output: BindGroup,
     /// Group 2 of the reconstruction: occupancy and visibility masks.
@@ -624,6 +648,7 @@ impl RhVolumeGpu {
             nested: false,
             cell_diagonal: 0.0,
             motion_update: false,
+            scroll: None,
             uniform_offsets: Vec::new(),
             export: None,
             pipelines: None,
@@ -752,9 +777,16 @@ pub(crate) fn prepare_rh_volumes(
         };
         // §8 occlusion depends on the camera: recompute every frame.
         let changed = gpu.built_from.as_ref() != Some(&key) || s.depth_occlusion.is_some();
+        // A volume that moved by whole cells keeps its field, scrolled with it (a cascade level following
+        // its camera).
+        gpu.scroll = gpu.built_from.as_ref().filter(|b| b.settings == key.settings && !gpu.first_update).and_then(|b| {
+            let before = Mat4::from_cols_array(&b.transform.map(f32::from_bits));
+            super::voxelize::scroll_shift(before, volume.world_from_local, s.resolution)
+        });
         // A change to a volume that already shows a field: amortise (see `motion_update`). A new volume
         // or new settings get the full update.
-        let same_volume = gpu.built_from.as_ref().is_some_and(|b| b.settings == key.settings && b.transform == key.transform);
+        let same_volume = gpu.built_from.as_ref().is_some_and(|b| b.settings == key.settings && b.transform == key.transform)
+            || gpu.scroll.is_some();
         gpu.motion_update = changed && same_volume && !gpu.first_update && s.extra_bounces > 0;
         if changed {
             gpu.updates_left = convergence_updates(s.temporal_blend).max(s.refinement_updates + 1);
@@ -804,6 +836,7 @@ pub(crate) fn prepare_rh_volumes(
             blend_faces: nested[index],
             occupancy_resolution: gpu.occupancy_resolution.extend(s.voxel_visibility as u32),
             near_field_range: if s.voxel_visibility { s.near_field_occlusion * cell.length() } else { 0.0 },
+            scroll: gpu.scroll.unwrap_or(IVec3::ZERO).extend(0),
         };
         gpu.uniform_offsets.clear();
         gpu.uniform_offsets.push(state.uniforms.push(&uniform));
@@ -837,6 +870,8 @@ pub(crate) fn prepare_rh_volumes(
             blend: specialize(RhPass::Blend),
             export: specialize(RhPass::Export),
             visibility: specialize(RhPass::Visibility),
+            scroll_field: specialize(RhPass::Scroll { packed: false }),
+            scroll_packed: specialize(RhPass::Scroll { packed: true }),
         });
         if let Some(region) = gpu.visibility_pending {
             let mut data = encase::UniformBuffer::new(Vec::<u8>::new());
@@ -978,6 +1013,13 @@ pub(crate) fn prepare_rh_bind_groups(
                     v.packed.as_entire_binding(),
                 )),
             ),
+            scroll: [&v.result, &v.packed].map(|buffer| {
+                device.create_bind_group(
+                    "diffuse_gi_rh_scroll_bind_group",
+                    &layout(&pipelines.scroll_layout),
+                    &BindGroupEntries::sequential((uniform.clone(), v.delta[0].as_entire_binding(), buffer.as_entire_binding())),
+                )
+            }),
         });
     }
 }

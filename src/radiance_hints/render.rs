@@ -121,6 +121,26 @@ fn update_volumes(
                 continue;
             };
 
+            // The volume moved by whole cells: first carry its field along (each buffer is copied to
+            // `delta[0]`, which the injection overwrites next, and read back shifted).
+            if v.scroll.is_some()
+                && let (Some(field), Some(packed)) = (
+                    pipeline_cache.get_compute_pipeline(ids.scroll_field),
+                    pipeline_cache.get_compute_pipeline(ids.scroll_packed),
+                )
+            {
+                for (buffer, pipeline, group) in [(&v.result, field, &groups.scroll[0]), (&v.packed, packed, &groups.scroll[1])] {
+                    ctx.command_encoder().copy_buffer_to_buffer(buffer, 0, &v.delta[0], 0, buffer.size());
+                    let mut pass = ctx.command_encoder().begin_compute_pass(&ComputePassDescriptor {
+                        label: Some("diffuse_gi_rh_scroll"),
+                        timestamp_writes: None,
+                    });
+                    pass.set_pipeline(pipeline);
+                    pass.set_bind_group(0, group, &[base]);
+                    pass.dispatch_workgroups(v.workgroups, 1, 1);
+                }
+            }
+
             // Spans inside the passes: on lavapipe, timestamps written between compute passes do not
             // bracket the compute work (the injection's span read 1.6 ms for 64 samples and 4.1 ms for
             // 256 while the frame took 115 ms longer).

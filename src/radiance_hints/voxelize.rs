@@ -19,7 +19,7 @@
 //! volume, resolution or transform). When meshes move, [`voxelize_update`] redoes only the cells their old
 //! and new bounds touch (plus one cell around), so one moving mesh costs what its bounds cover.
 
-use bevy::math::{Mat4, UVec3, Vec3, Vec4};
+use bevy::math::{IVec3, Mat4, UVec3, Vec3, Vec4};
 
 use crate::scene::SceneSnapshot;
 
@@ -158,6 +158,111 @@ pub fn voxelize_update(
     }
     out.albedo_validity = albedo;
     out
+}
+
+/// How many hint cells a volume moved from `old` to `new` (both world-from-unit-cube), when that is all
+/// that changed: the same axes and size, and a translation by a whole number of cells along each axis of
+/// a `res` grid (as a [`RadianceHintsCascade`](super::RadianceHintsCascade) level moves, snapped to its
+/// cells). `None` otherwise.
+pub fn scroll_shift(old: Mat4, new: Mat4, res: UVec3) -> Option<IVec3> {
+    let same_axes = (0..3).all(|i| old.col(i).abs_diff_eq(new.col(i), 1e-5 * old.col(i).length().max(1e-6)));
+    if !same_axes || old.determinant().abs() < 1e-12 {
+        return None;
+    }
+    let moved = old.inverse().transform_vector3((new.col(3) - old.col(3)).truncate()) * res.as_vec3();
+    let shift = moved.round();
+    ((moved - shift).abs().max_element() < 1e-3 && shift != Vec3::ZERO).then(|| shift.as_ivec3())
+}
+
+/// `previous`, the voxels of the same volume before it moved by `shift` hint cells ([`scroll_shift`]),
+/// scrolled to where the volume is now: the cells both boxes hold are copied and only those that came
+/// into the box are voxelised (a cascade level crossing one cell redoes one slab, not the grid). The
+/// result equals [`voxelize`] at the new place up to rounding at cell boundaries. `None` when the move
+/// is not a whole number of occupancy voxels (a grid whose occupancy is capped at
+/// [`MAX_OCCUPANCY_RESOLUTION`]) or spans the grid: voxelise it whole instead.
+pub fn voxelize_scrolled(
+    snapshot: &SceneSnapshot,
+    world_from_local: Mat4,
+    resolution: UVec3,
+    previous: &GeometryVoxels,
+    shift: IVec3,
+) -> Option<GeometryVoxels> {
+    let res = resolution.max(UVec3::ONE);
+    let occupancy_res = occupancy_resolution(res);
+    let cells = (res.x * res.y * res.z) as usize;
+    if previous.albedo_sums.len() != cells
+        || previous.occupancy_resolution != occupancy_res
+        || occupancy_res != res * OCCUPANCY_FACTOR
+        || shift.abs().cmpge(res.as_ivec3()).any()
+    {
+        return None;
+    }
+    let local_from_world = world_from_local.inverse();
+    // New cell c holds what old cell c + shift held.
+    let mut sums = vec![Vec4::ZERO; cells];
+    let mut validity = vec![0.0f32; cells];
+    for z in 0..res.z {
+        for y in 0..res.y {
+            for x in 0..res.x {
+                let c = UVec3::new(x, y, z);
+                let old = c.as_ivec3() + shift;
+                if old.cmpge(IVec3::ZERO).all() && old.cmplt(res.as_ivec3()).all() {
+                    let (i, o) = (cell_index(c, res), cell_index(old.as_uvec3(), res));
+                    sums[i] = previous.albedo_sums[o];
+                    validity[i] = previous.albedo_validity[o].w;
+                }
+            }
+        }
+    }
+    let voxel_shift = shift * OCCUPANCY_FACTOR as i32;
+    let mut occupancy = vec![0u32; previous.occupancy.len()];
+    for z in 0..occupancy_res.z {
+        for y in 0..occupancy_res.y {
+            for x in 0..occupancy_res.x {
+                let v = UVec3::new(x, y, z);
+                let old = v.as_ivec3() + voxel_shift;
+                if old.cmpge(IVec3::ZERO).all() && old.cmplt(occupancy_res.as_ivec3()).all() {
+                    let o = cell_index(old.as_uvec3(), occupancy_res);
+                    if previous.occupancy[o / 32] & (1 << (o % 32)) != 0 {
+                        let i = cell_index(v, occupancy_res);
+                        occupancy[i / 32] |= 1 << (i % 32);
+                    }
+                }
+            }
+        }
+    }
+    // The slabs that came into the box, one per axis it moved along (they may share corner cells:
+    // each box is cleared before it is summed, so a cell is never counted twice).
+    let world_from_local = local_from_world.inverse();
+    for axis in 0..3 {
+        let s = shift[axis];
+        if s == 0 {
+            continue;
+        }
+        let (mut lo, mut hi) = (UVec3::ZERO, res - 1);
+        if s > 0 {
+            lo[axis] = res[axis] - s as u32;
+        } else {
+            hi[axis] = (-s) as u32 - 1;
+        }
+        for z in lo.z..=hi.z {
+            for y in lo.y..=hi.y {
+                for x in lo.x..=hi.x {
+                    let c = UVec3::new(x, y, z);
+                    sums[cell_index(c, res)] = Vec4::ZERO;
+                    validity[cell_index(c, res)] = hint_valid(snapshot, world_from_local, res, c);
+                }
+            }
+        }
+        albedo_sums(snapshot, local_from_world, res, (lo, hi), &mut sums);
+        let voxels = (lo * OCCUPANCY_FACTOR, (hi + 1) * OCCUPANCY_FACTOR - 1);
+        occupancy_bits(snapshot, local_from_world, occupancy_res, voxels, &mut occupancy);
+    }
+    let mut albedo = finish_albedo(&sums, res);
+    for (a, v) in albedo.iter_mut().zip(validity) {
+        a.w = v;
+    }
+    Some(GeometryVoxels { albedo_validity: albedo, occupancy, occupancy_resolution: occupancy_res, albedo_sums: sums, changed: VoxelChange::All })
 }
 
 /// The cells of a `res` grid over the volume that the world box `lo..hi` touches, grown by `margin`.
@@ -466,6 +571,47 @@ pub fn triangle_box_overlap(centre: Vec3, half: Vec3, tri: [Vec3; 3]) -> bool {
 mod tests {
     use super::*;
     use crate::scene::{InputTriangle, SnapshotMaterial};
+
+    #[test]
+    fn a_volume_scrolled_by_whole_cells_equals_a_full_voxelisation_there() {
+        use crate::scene::{MeshGeometry, SceneSnapshot};
+        use bevy::math::Affine3A;
+        use std::sync::Arc;
+        let cube = Arc::new(MeshGeometry::new(
+            crate::scene::mesh_local_triangles(&bevy::prelude::Mesh::from(bevy::prelude::Cuboid::new(0.6, 0.6, 0.6))).unwrap(),
+        ));
+        let red = SnapshotMaterial { diffuse: Vec3::new(0.8, 0.1, 0.1), ..SnapshotMaterial::DEFAULT_GREY };
+        let mut scene = SceneSnapshot::build(wall(-1.9, 0).into_iter().chain(wall(1.9, 0)), vec![SnapshotMaterial::DEFAULT_GREY, red], vec![], vec![]);
+        // Off the cell boundaries, so that rounding at a boundary cannot decide a bit.
+        scene.set_instance(100, cube.clone(), Affine3A::from_translation(Vec3::new(-0.83, 0.07, 0.11)), 1);
+        scene.set_instance(101, cube, Affine3A::from_translation(Vec3::new(0.93, 0.53, 0.29)), 1);
+        scene.commit();
+        let res = UVec3::new(8, 6, 8);
+        let size = Vec3::new(4.0, 3.0, 4.0);
+        let cell = size / res.as_vec3();
+        let at = |centre: Vec3| Mat4::from_scale_rotation_translation(size, bevy::math::Quat::IDENTITY, centre);
+        let before = voxelize(&scene, at(Vec3::new(0.01, 0.02, 0.03)), res);
+        for shift in [IVec3::new(1, 0, 0), IVec3::new(-2, 0, 1), IVec3::new(1, -1, -3)] {
+            let old = at(Vec3::new(0.01, 0.02, 0.03));
+            let new = at(Vec3::new(0.01, 0.02, 0.03) + shift.as_vec3() * cell);
+            assert_eq!(scroll_shift(old, new, res), Some(shift));
+            let scrolled = voxelize_scrolled(&scene, new, res, &before, shift).expect("a whole-cell move scrolls");
+            let full = voxelize(&scene, new, res);
+            let differing = (0..full.occupancy.len() * 32).filter(|&i| (scrolled.occupancy[i / 32] ^ full.occupancy[i / 32]) & (1 << (i % 32)) != 0).count();
+            assert_eq!(differing, 0, "shift {shift}: {differing} occupancy bits differ");
+            for (a, b) in scrolled.albedo_validity.iter().zip(&full.albedo_validity) {
+                assert!((*a - *b).abs().max_element() < 1e-3, "shift {shift}: {a} vs {b}");
+            }
+        }
+        // Not a whole number of cells, a turn or a new size: no scroll.
+        let old = at(Vec3::ZERO);
+        assert_eq!(scroll_shift(old, at(Vec3::new(0.3 * cell.x, 0.0, 0.0)), res), None);
+        assert_eq!(scroll_shift(old, old, res), None);
+        assert_eq!(scroll_shift(old, Mat4::from_scale(size * 1.5), res), None);
+        assert_eq!(scroll_shift(old, Mat4::from_rotation_y(0.3) * old, res), None);
+        // A move across the whole grid is voxelised afresh.
+        assert!(voxelize_scrolled(&scene, at(Vec3::X * 9.0 * cell.x), res, &before, IVec3::new(9, 0, 0)).is_none());
+    }
 
     #[test]
     fn an_update_after_a_move_equals_a_full_voxelisation() {
