@@ -118,7 +118,7 @@ pub fn sample_emitters(snapshot: &SceneSnapshot, exposure: f32, count: usize) ->
             continue;
         };
         let radiance = material.emission(exposure);
-        if !(radiance.max_element() > 0.0) || !radiance.is_finite() {
+        if !radiance.is_finite() || radiance.max_element() <= 0.0 {
             continue;
         }
         for i in 0..instance.triangle_count() {
@@ -131,7 +131,7 @@ pub fn sample_emitters(snapshot: &SceneSnapshot, exposure: f32, count: usize) ->
         }
     }
     let total: f64 = triangles.iter().map(|t| t.3 as f64).sum();
-    if triangles.is_empty() || !(total > 0.0) || count == 0 {
+    if triangles.is_empty() || total.is_nan() || total <= 0.0 || count == 0 {
         return (Vec::new(), 0.0);
     }
     let per_sample = (total / count as f64) as f32;

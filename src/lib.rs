@@ -94,6 +94,15 @@ impl Plugin for DiffuseGiPlugin {
             app.insert_resource(DefaultOpaqueRendererMethod::deferred());
         }
         app.init_resource::<DiffuseGiWarnings>().init_resource::<MainThreadCost>();
+        // Pipelines that fail to compile, seen by the render world and read by tools and tests.
+        let pipeline_errors = GiPipelineErrors::default();
+        app.insert_resource(pipeline_errors.clone());
+        if let Some(render_app) = app.get_sub_app_mut(bevy::render::RenderApp) {
+            render_app.insert_resource(pipeline_errors).add_systems(
+                bevy::render::Render,
+                check_pipelines.in_set(bevy::render::RenderSystems::Cleanup),
+            );
+        }
         app.register_type::<light::GiLight>().add_plugins((
             scene::SceneSnapshotPlugin,
             rsm::RsmPlugin,
@@ -172,6 +181,42 @@ pub fn shared_shader_defs() -> Vec<bevy::shader::ShaderDefVal> {
         UInt("LIGHT_KIND_SPOT".into(), rsm::KIND_SPOT),
         UInt("LIGHT_KIND_POINT".into(), rsm::KIND_POINT),
     ]
+}
+
+/// The plugin's render pipelines that failed to compile (a shader the driver or naga rejects): one line
+/// each, naming the pipeline and the error, in order. Bevy logs the error and the pass does not run; the
+/// headless renderer fails a run that has any, so tests see a broken shader as a failure.
+#[derive(Resource, Clone, Default)]
+pub struct GiPipelineErrors(std::sync::Arc<std::sync::Mutex<Vec<String>>>);
+
+impl GiPipelineErrors {
+    pub fn messages(&self) -> Vec<String> {
+        self.0.lock().map(|m| m.clone()).unwrap_or_default()
+    }
+}
+
+/// Records the plugin's pipelines (labels `diffuse_gi…`) in the error state into [`GiPipelineErrors`].
+fn check_pipelines(cache: Res<bevy::render::render_resource::PipelineCache>, errors: Res<GiPipelineErrors>) {
+    use bevy::render::render_resource::{CachedPipelineState, PipelineDescriptor};
+    for pipeline in cache.pipelines() {
+        let CachedPipelineState::Err(error) = &pipeline.state else {
+            continue;
+        };
+        let label = match &pipeline.descriptor {
+            PipelineDescriptor::RenderPipelineDescriptor(d) => d.label.as_deref(),
+            PipelineDescriptor::ComputePipelineDescriptor(d) => d.label.as_deref(),
+        };
+        let Some(label) = label.filter(|l| l.starts_with("diffuse_gi")) else {
+            continue;
+        };
+        let Ok(mut messages) = errors.0.lock() else {
+            return;
+        };
+        let message = format!("pipeline {label} failed to compile: {error}");
+        if !messages.contains(&message) {
+            messages.push(message);
+        }
+    }
 }
 
 /// Every warning the plugin has logged about the app's settings or the GPU, in order (each is logged

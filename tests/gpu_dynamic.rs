@@ -173,7 +173,7 @@ fn churn(
         state.mesh = Some(meshes.add(Cuboid::new(0.3, 0.3, 0.3)));
         state.material = Some(materials.add(StandardMaterial::from(Color::srgb(0.9, 0.5, 0.1))));
     }
-    if f % 7 == 0 {
+    if f.is_multiple_of(7) {
         let at = Vec3::new(2.0 * (t * 0.37).sin(), 1.0 + 0.8 * (t * 0.11).cos(), 1.5 * (t * 0.23).cos());
         let kind = (f / 7) % 3;
         let entity = match kind {
@@ -181,21 +181,21 @@ fn churn(
                 .spawn((
                     PointLight { intensity: 2000.0, shadow_maps_enabled: true, ..default() },
                     Transform::from_translation(at),
-                    GiLight { rsm_resolution: 48, ..default() },
+                    GiLight { rsm_resolution: 48 },
                 ))
                 .id(),
             1 => commands
                 .spawn((
                     SpotLight { intensity: 4000.0, shadow_maps_enabled: true, ..default() },
                     Transform::from_translation(at).looking_at(Vec3::ZERO, Vec3::Y),
-                    GiLight { rsm_resolution: 32 + (f % 5) * 16, ..default() },
+                    GiLight { rsm_resolution: 32 + (f % 5) * 16 },
                 ))
                 .id(),
             _ => commands
                 .spawn((
-                    DirectionalLight { illuminance: 500.0, shadow_maps_enabled: f % 2 == 0, ..default() },
+                    DirectionalLight { illuminance: 500.0, shadow_maps_enabled: f.is_multiple_of(2), ..default() },
                     Transform::from_translation(at).looking_at(Vec3::ZERO, Vec3::Y),
-                    GiLight { rsm_resolution: 64, ..default() },
+                    GiLight { rsm_resolution: 64 },
                 ))
                 .id(),
         };
@@ -206,7 +206,7 @@ fn churn(
         let light = state.lights.remove(0);
         commands.entity(light).despawn();
     }
-    if f % 3 == 0 {
+    if f.is_multiple_of(3) {
         let at = Vec3::new(2.5 * (t * 0.29).cos(), 0.2 + (t * 0.07).sin().abs(), 2.0 * (t * 0.19).sin());
         let (mesh, material) = (state.mesh.clone().unwrap(), state.material.clone().unwrap());
         state.meshes.push(commands.spawn((Mesh3d(mesh), MeshMaterial3d(material), Transform::from_translation(at))).id());
@@ -220,14 +220,14 @@ fn churn(
         if f % 50 == 25 {
             volume.resolution = UVec3::new(8 + f % 9, 6 + f % 5, 8 + f % 7);
         }
-        if f % 13 == 0 {
-            transform.scale *= if (f / 13) % 2 == 0 { 1.2 } else { 1.0 / 1.2 };
+        if f.is_multiple_of(13) {
+            transform.scale *= if (f / 13).is_multiple_of(2) { 1.2 } else { 1.0 / 1.2 };
             transform.translation.x += 0.1 * (t * 0.3).sin();
         }
     }
-    if f % 17 == 0 {
+    if f.is_multiple_of(17) {
         for mut camera in &mut cameras {
-            camera.viewport = if (f / 17) % 2 == 0 {
+            camera.viewport = if (f / 17).is_multiple_of(2) {
                 Some(bevy::camera::Viewport { physical_size: UVec2::new(40 + f % 20, 48), ..default() })
             } else {
                 None

@@ -89,8 +89,7 @@ fn volume_activity(bounce_threshold: f32, frames: u32) -> Vec<Option<bevy_diffus
         });
     })
     .expect("render");
-    let seen = seen.lock().unwrap().clone();
-    seen
+    seen.lock().unwrap().clone()
 }
 
 #[test]

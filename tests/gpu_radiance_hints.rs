@@ -496,9 +496,9 @@ fn cellar_floor_junctions_hold_no_outlier_pixels() {
     assert_no_cellar_junction_outliers("rh_cellar_floor_junctions", 120..256);
 }
 
-/// `cornell` with its volume 1.5× the box (so that moving it a cell keeps the box inside). With `step`
-/// > 0 the volume jumps `step` cells along x and back every frame; with `step` < 0 it stays and the light's
-/// intensity changes by 0.01 % every frame instead (inputs that change every frame, as a moving light's
+/// `cornell` with its volume 1.5× the box (so that moving it a cell keeps the box inside). With a
+/// positive `step` the volume jumps `step` cells along x and back every frame; with a negative one it
+/// stays and the light's intensity changes by 0.01 % every frame instead (inputs that change every frame, as a moving light's
 /// do, without moving anything). Returns the image and the activity the panel shows, frame by frame.
 fn moving_volume(step: f32) -> (HdrImage, Vec<bevy_diffuse_gi::radiance_hints::RhVolumeActivity>) {
     use bevy::prelude::*;
@@ -531,10 +531,10 @@ fn moving_volume(step: f32) -> (HdrImage, Vec<bevy_diffuse_gi::radiance_hints::R
                     record.lock().unwrap().push(a);
                 }
                 let cell = home.scale.x / volume.effective(home.to_matrix()).resolution.x as f32;
-                let offset = if step > 0.0 && *frame > 3 && *frame % 2 == 0 { step * cell } else { 0.0 };
+                let offset = if step > 0.0 && *frame > 3 && frame.is_multiple_of(2) { step * cell } else { 0.0 };
                 if step < 0.0 && *frame > 3 {
                     for mut light in &mut lights {
-                        light.intensity *= if *frame % 2 == 0 { 1.0001 } else { 1.0 / 1.0001 };
+                        light.intensity *= if frame.is_multiple_of(2) { 1.0001 } else { 1.0 / 1.0001 };
                     }
                 }
                 let next = Transform { translation: home.translation + Vec3::X * offset, ..home };

@@ -168,8 +168,8 @@ fn attach_gi(
     }
 }
 
-/// 4. A Radiance Hints volume around the scene's meshes (the medium preset, whose grid adapts to the
-/// box), once they have bounds. It costs nothing while no camera uses Radiance Hints.
+/// A Radiance Hints volume around the scene's meshes (the medium preset, whose grid adapts to the box),
+/// once they have bounds. It costs nothing while no camera uses Radiance Hints.
 fn fit_volume(
     mut commands: Commands,
     example: Res<Example>,
@@ -180,7 +180,7 @@ fn fit_volume(
     if *status != SceneStatus::Ready || !volumes.is_empty() {
         return;
     }
-    let Some((lo, hi)) = mesh_bounds(&meshes) else {
+    let Some((lo, hi)) = mesh_bounds(meshes.iter()) else {
         return;
     };
     let size = ((hi - lo) * 1.002).max(Vec3::splat(0.05));
@@ -308,7 +308,7 @@ fn camera_rig(
     let keys_free = !wants.as_ref().is_some_and(|w| w.wants_any_keyboard_input());
     for (mut rig, mut transform) in &mut cameras {
         if !rig.ready {
-            let Some((lo, hi)) = mesh_bounds(&meshes) else {
+            let Some((lo, hi)) = mesh_bounds(meshes.iter()) else {
                 continue;
             };
             rig.scale = (hi - lo).length().max(0.1);

@@ -142,12 +142,18 @@ pub fn run_with(options: &HeadlessOptions, customise: impl FnOnce(&mut App)) -> 
     let mut app = build_app(options, outcome.clone());
     customise(&mut app);
     let frames = app.world().resource::<Headless>().frames.clone();
+    // `App::run` moves the app out: keep what is read afterwards.
+    let pipeline_errors = app.world().get_resource::<crate::GiPipelineErrors>().cloned();
     app.run();
     let non_finite = frames.lock().map_or(0, |f| f.non_finite);
     if non_finite > 0 {
         return Err(format!("{non_finite} frames read back contained NaN or infinite values"));
     }
+    let broken = pipeline_errors.map(|e| e.messages()).unwrap_or_default();
     drop(app);
+    if !broken.is_empty() {
+        return Err(broken.join("\n"));
+    }
     let mut outcome = std::mem::take(&mut *outcome.lock().map_err(|_| "the render thread panicked")?);
     if let Some(error) = outcome.error {
         return Err(error);

@@ -100,6 +100,7 @@ fn inspector_ui(
     warnings: Option<Res<crate::DiffuseGiWarnings>>,
     timing: Option<Res<crate::GiDeviceTiming>>,
     activity: Option<Res<RadianceHintsActivity>>,
+    pipeline_errors: Option<Res<crate::GiPipelineErrors>>,
 ) -> Result {
     let label = |entity: Entity, name: Option<&Name>| name.map_or_else(|| format!("{entity}"), |n| n.to_string());
     let ctx = contexts.ctx_mut()?;
@@ -196,14 +197,19 @@ fn inspector_ui(
                 }
             }
         });
-        let logged = warnings.as_ref().map_or(0, |w| w.messages.len());
+        let broken = pipeline_errors.as_ref().map(|e| e.messages()).unwrap_or_default();
+        let logged = warnings.as_ref().map_or(0, |w| w.messages.len()) + broken.len();
         egui::CollapsingHeader::new(format!("Warnings ({logged})")).default_open(logged > 0).show(ui, |ui| {
+            for message in &broken {
+                ui.colored_label(egui::Color32::LIGHT_RED, message);
+            }
             match warnings.as_deref() {
                 Some(w) if !w.messages.is_empty() => {
                     for message in &w.messages {
                         ui.label(message.strip_prefix("bevy_diffuse_gi: ").unwrap_or(message));
                     }
                 }
+                _ if !broken.is_empty() => {}
                 _ => {
                     ui.label("none: every setting is in range and the GPU has what the methods need");
                 }
