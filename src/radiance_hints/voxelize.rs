@@ -572,8 +572,8 @@ mod tests {
     use super::*;
     use crate::scene::{InputTriangle, SnapshotMaterial};
 
-    #[test]
-    fn a_volume_scrolled_by_whole_cells_equals_a_full_voxelisation_there() {
+    /// Two grey walls at x = ±1.9 and two red 0.6 m cubes (instances 100 and 101) at `cubes`.
+    fn walls_and_cubes(cubes: [Vec3; 2]) -> crate::scene::SceneSnapshot {
         use crate::scene::{MeshGeometry, SceneSnapshot};
         use bevy::math::Affine3A;
         use std::sync::Arc;
@@ -582,10 +582,16 @@ mod tests {
         ));
         let red = SnapshotMaterial { diffuse: Vec3::new(0.8, 0.1, 0.1), ..SnapshotMaterial::DEFAULT_GREY };
         let mut scene = SceneSnapshot::build(wall(-1.9, 0).into_iter().chain(wall(1.9, 0)), vec![SnapshotMaterial::DEFAULT_GREY, red], vec![], vec![]);
-        // Off the cell boundaries, so that rounding at a boundary cannot decide a bit.
-        scene.set_instance(100, cube.clone(), Affine3A::from_translation(Vec3::new(-0.83, 0.07, 0.11)), 1);
-        scene.set_instance(101, cube, Affine3A::from_translation(Vec3::new(0.93, 0.53, 0.29)), 1);
+        scene.set_instance(100, cube.clone(), Affine3A::from_translation(cubes[0]), 1);
+        scene.set_instance(101, cube, Affine3A::from_translation(cubes[1]), 1);
         scene.commit();
+        scene
+    }
+
+    #[test]
+    fn a_volume_scrolled_by_whole_cells_equals_a_full_voxelisation_there() {
+        // Off the cell boundaries, so that rounding at a boundary cannot decide a bit.
+        let scene = walls_and_cubes([Vec3::new(-0.83, 0.07, 0.11), Vec3::new(0.93, 0.53, 0.29)]);
         let res = UVec3::new(8, 6, 8);
         let size = Vec3::new(4.0, 3.0, 4.0);
         let cell = size / res.as_vec3();
@@ -615,17 +621,8 @@ mod tests {
 
     #[test]
     fn an_update_after_a_move_equals_a_full_voxelisation() {
-        use crate::scene::{MeshGeometry, SceneSnapshot};
         use bevy::math::Affine3A;
-        use std::sync::Arc;
-        let cube = Arc::new(MeshGeometry::new(
-            crate::scene::mesh_local_triangles(&bevy::prelude::Mesh::from(bevy::prelude::Cuboid::new(0.6, 0.6, 0.6))).unwrap(),
-        ));
-        let red = SnapshotMaterial { diffuse: Vec3::new(0.8, 0.1, 0.1), ..SnapshotMaterial::DEFAULT_GREY };
-        let mut scene = SceneSnapshot::build(wall(-1.9, 0).into_iter().chain(wall(1.9, 0)), vec![SnapshotMaterial::DEFAULT_GREY, red], vec![], vec![]);
-        scene.set_instance(100, cube.clone(), Affine3A::from_translation(Vec3::new(-0.8, 0.0, 0.0)), 1);
-        scene.set_instance(101, cube, Affine3A::from_translation(Vec3::new(0.9, 0.5, 0.3)), 1);
-        scene.commit();
+        let mut scene = walls_and_cubes([Vec3::new(-0.8, 0.0, 0.0), Vec3::new(0.9, 0.5, 0.3)]);
         let volume = Mat4::from_scale(Vec3::splat(4.0));
         let res = UVec3::splat(8);
         let before = voxelize(&scene, volume, res);
