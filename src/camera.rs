@@ -24,6 +24,8 @@ pub struct DiffuseGi {
     /// methods that no camera uses run no pass.
     pub method: GiMethod,
     /// How the bounced light reaches the image. Default [`GiOutput::Composite`].
+    /// [`GiOutput::IrradianceVolume`] needs a volume to export, which only Radiance Hints has: with the
+    /// other methods the camera composites instead, with one warning ([`effective_output`](Self::effective_output)).
     pub output: GiOutput,
     /// What to show. Default [`GiDebugView::None`] (the lit image).
     pub debug_view: GiDebugView,
@@ -38,6 +40,34 @@ pub struct DiffuseGi {
     /// every pixel: sharper along thin geometry and silhouettes, where a texel stands for pixels of two
     /// surfaces.
     pub half_resolution: bool,
+}
+
+impl DiffuseGi {
+    /// The output the camera uses: [`output`](Self::output), except that the per-pixel methods, which
+    /// have no volume to export, always composite.
+    pub fn effective_output(&self) -> GiOutput {
+        if self.method == GiMethod::RadianceHints { self.output } else { GiOutput::Composite }
+    }
+}
+
+/// Warns once per camera that asks for [`GiOutput::IrradianceVolume`] with a method that has no volume.
+pub(crate) fn warn_unsupported_output(
+    cameras: Query<(Entity, &DiffuseGi), Changed<DiffuseGi>>,
+    mut warned: Local<bevy::platform::collections::HashSet<(Entity, GiMethod)>>,
+    mut warnings: ResMut<crate::DiffuseGiWarnings>,
+) {
+    for (entity, gi) in &cameras {
+        if gi.output == GiOutput::IrradianceVolume && gi.effective_output() != gi.output && warned.insert((entity, gi.method)) {
+            crate::gi_warning(
+                &mut warnings,
+                format!(
+                    "bevy_diffuse_gi: camera {entity} asks for GiOutput::IrradianceVolume with GiMethod::{:?}, which has no \
+                     volume to export (only Radiance Hints has); it composites per pixel instead",
+                    gi.method
+                ),
+            );
+        }
+    }
 }
 
 impl Default for DiffuseGi {
@@ -113,7 +143,8 @@ pub enum GiOutput {
     Composite,
     /// Write the volume's irradiance into a Bevy [`IrradianceVolume`](bevy::light::IrradianceVolume)
     /// (ambient cube per hint) that `StandardMaterial` applies in forward and deferred rendering. Coarser:
-    /// no per-pixel hemisphere sampling, six directions per hint. `Composite` is skipped.
+    /// no per-pixel hemisphere sampling, six directions per hint. `Composite` is skipped. Radiance Hints
+    /// only: the per-pixel methods composite instead.
     IrradianceVolume,
 }
 

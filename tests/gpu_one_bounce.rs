@@ -232,3 +232,35 @@ fn drm_photons_follow_a_moving_light_every_frame() {
         check(test, change > 0.004, &report.image, Some(previous), format!("frame {frames}: the image did not follow the light ({change:.4})"));
     }
 }
+
+#[test]
+fn asking_a_per_pixel_method_for_the_irradiance_volume_output_composites_instead() {
+    // Only Radiance Hints has a volume to export. A camera that asks the RSM gather for
+    // `GiOutput::IrradianceVolume` gets the composited light (and one warning), not an image without
+    // bounced light.
+    use bevy_diffuse_gi::camera::GiOutput;
+    let lit = |gi_output, method| {
+        render(&HeadlessOptions {
+            scene: StandardScene::Cornell,
+            method,
+            gi_output,
+            size: bevy::math::UVec2::splat(64),
+            frames: 3,
+            ..Default::default()
+        })
+        .image
+    };
+    let gi = HeadlessMethod::Gi(GiMethod::RsmGather);
+    let asked = lit(GiOutput::IrradianceVolume, gi);
+    let composite = lit(GiOutput::Composite, gi);
+    let none = lit(GiOutput::Composite, HeadlessMethod::None);
+    let total = |i: &HdrImage| i.pixels.iter().map(|p| (p[0] + p[1] + p[2]) as f64).sum::<f64>();
+    let (a, c, n) = (total(&asked), total(&composite), total(&none));
+    check(
+        "one_bounce_irradiance_volume_fallback",
+        (a - c).abs() <= 1e-3 * c && a > 1.05 * n,
+        &asked,
+        Some(&composite),
+        format!("IrradianceVolume asked of the RSM gather: {a:.1}, composited {c:.1}, no GI {n:.1}"),
+    );
+}

@@ -303,7 +303,7 @@ pub(crate) fn composite_gi(
 ) {
     let (gi, target, view_offset, prepass, gi_target, pipeline_id) = view.into_inner();
     let debug_view = gi.0.debug_view;
-    if gi.0.output == GiOutput::IrradianceVolume && debug_view == GiDebugView::None {
+    if gi.0.effective_output() == GiOutput::IrradianceVolume && debug_view == GiDebugView::None {
         // StandardMaterial applies the exported IrradianceVolume itself.
         return;
     }
@@ -365,7 +365,7 @@ pub(crate) fn filter_gi_target(
     mut ctx: RenderContext,
 ) {
     let (gi, view_offset, prepass, gi_target) = view.into_inner();
-    if gi.0.output == GiOutput::IrradianceVolume && gi.0.debug_view == GiDebugView::None {
+    if gi.0.effective_output() == GiOutput::IrradianceVolume && gi.0.debug_view == GiDebugView::None {
         return;
     }
     let Some((filtered, pipeline_id)) = &gi_target.filtered else {
@@ -504,6 +504,7 @@ impl Plugin for CompositePlugin {
         );
         let library = crate::add_shader(app, "composite/gi_frame.wgsl", include_str!("../../shaders/composite/gi_frame.wgsl"));
         let filter = crate::add_shader(app, "composite/filter.wgsl", include_str!("../../shaders/composite/filter.wgsl"));
+        app.add_systems(PostUpdate, crate::camera::warn_unsupported_output);
         let Some(render_app) = app.get_sub_app_mut(RenderApp) else {
             return;
         };

@@ -136,7 +136,7 @@ fn inspector_ui(
                     .selected_text(format!("{:?}", g.output))
                     .show_ui(ui, |ui| {
                         ui.selectable_value(&mut g.output, GiOutput::Composite, "Composite (per pixel)");
-                        ui.selectable_value(&mut g.output, GiOutput::IrradianceVolume, "IrradianceVolume");
+                        ui.selectable_value(&mut g.output, GiOutput::IrradianceVolume, "IrradianceVolume (Radiance Hints only)");
                     });
                 ui.checkbox(&mut g.half_resolution, "half resolution (every method)");
                 commit(g, &mut gi);
