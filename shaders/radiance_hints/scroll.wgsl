@@ -3,8 +3,8 @@
 // nothing is recomputed for it. Hints that came into the box take the nearest hint that was in it (the
 // field's edge, continued), until the updates that follow bring their own light.
 //
-// `source` is a copy of the buffer before the move; `destination` is the buffer itself. One entry point per
-// layout: the SH field (SH_FLOATS floats per hint) and the packed irradiance (4 words per hint).
+// `source` is a copy of the field before the move; `destination` is the field itself. The packed
+// irradiance the reconstruction reads needs no scroll: the update's blend rewrites it from the field.
 
 #import bevy_diffuse_gi::rh_types::{RhVolume, SH_FLOATS, cell_index}
 
@@ -20,23 +20,14 @@ fn scrolled_from(index: u32) -> u32 {
     return cell_index(vec3<u32>(old), res);
 }
 
-fn scroll_words(index: u32, words: u32) {
-    let old = scrolled_from(index);
-    for (var k = 0u; k < words; k++) {
-        destination[index * words + k] = source[old * words + k];
-    }
-}
-
 @compute @workgroup_size(#{WORKGROUP_SIZE})
 fn scroll_field(@builtin(global_invocation_id) gid: vec3<u32>) {
-    if gid.x < volume.resolution.w {
-        scroll_words(gid.x, SH_FLOATS);
+    let index = gid.x;
+    if index >= volume.resolution.w {
+        return;
     }
-}
-
-@compute @workgroup_size(#{WORKGROUP_SIZE})
-fn scroll_packed(@builtin(global_invocation_id) gid: vec3<u32>) {
-    if gid.x < volume.resolution.w {
-        scroll_words(gid.x, 4u);
+    let old = scrolled_from(index);
+    for (var k = 0u; k < SH_FLOATS; k++) {
+        destination[index * SH_FLOATS + k] = source[old * SH_FLOATS + k];
     }
 }

@@ -100,9 +100,8 @@ pub enum RhPass {
     Export,
     /// The per-voxel hint masks of the reconstruction (`visibility.wgsl`).
     Visibility,
-    /// Moving the displayed field with a volume that moved by whole cells (`scroll.wgsl`): the SH field,
-    /// or the packed irradiance.
-    Scroll { packed: bool },
+    /// Moving the displayed field with a volume that moved by whole cells (`scroll.wgsl`).
+    Scroll,
 }
 
 /// Key of the compute pipelines.
@@ -147,7 +146,7 @@ pub struct RhPipelines {
     pub bounce_output_layout: BindGroupLayoutDescriptor,
     pub decide_layout: BindGroupLayoutDescriptor,
     pub blend_layout: BindGroupLayoutDescriptor,
-    /// Group 0 of the scroll: uniform, the copy before the move, the buffer to scroll.
+    /// Group 0 of the scroll: uniform, the copy of the field before the move, the field.
     pub scroll_layout: BindGroupLayoutDescriptor,
     pub export_layout: BindGroupLayoutDescriptor,
     /// Group 0 of the reconstruction: view, depth, G-buffer.
@@ -306,12 +305,7 @@ impl SpecializedComputePipeline for RhPipelines {
                 &self.shaders.visibility,
                 "visibility_masks",
             ),
-            RhPass::Scroll { packed } => (
-                "diffuse_gi_rh_scroll_pipeline",
-                vec![self.scroll_layout.clone()],
-                &self.shaders.scroll,
-                if packed { "scroll_packed" } else { "scroll_field" },
-            ),
+            RhPass::Scroll => ("diffuse_gi_rh_scroll_pipeline", vec![self.scroll_layout.clone()], &self.shaders.scroll, "scroll_field"),
             RhPass::Export => (
                 "diffuse_gi_rh_export_pipeline",
                 vec![self.export_layout.clone(), self.sample_layout.clone()],
@@ -458,8 +452,7 @@ pub struct RhVolumePipelines {
     pub blend: CachedComputePipelineId,
     pub export: CachedComputePipelineId,
     pub visibility: CachedComputePipelineId,
-    pub scroll_field: CachedComputePipelineId,
-    pub scroll_packed: CachedComputePipelineId,
+    pub scroll: CachedComputePipelineId,
 }
 
 /// Bind groups of one volume, rebuilt every frame (the uniform buffer may move).
@@ -472,8 +465,8 @@ pub struct RhVolumeBindGroups {
     pub bounce: [(BindGroup, BindGroup); 2],
     pub decide: BindGroup,
     pub blend: BindGroup,
-    /// The scroll of the SH field and of the packed irradiance, each from its copy in `delta[0]`.
-    pub scroll: [BindGroup; 2],
+    /// The scroll of the displayed field, from its copy in `delta[0]`.
+    pub scroll: BindGroup,
     /// The visibility-mask pass's output (group 0).
     pub visibility_output: BindGroup,
     /// Group 2 of the reconstruction: occupancy and visibility masks.
@@ -870,8 +863,7 @@ pub(crate) fn prepare_rh_volumes(
             blend: specialize(RhPass::Blend),
             export: specialize(RhPass::Export),
             visibility: specialize(RhPass::Visibility),
-            scroll_field: specialize(RhPass::Scroll { packed: false }),
-            scroll_packed: specialize(RhPass::Scroll { packed: true }),
+            scroll: specialize(RhPass::Scroll),
         });
         if let Some(region) = gpu.visibility_pending {
             let mut data = encase::UniformBuffer::new(Vec::<u8>::new());
@@ -1013,13 +1005,11 @@ pub(crate) fn prepare_rh_bind_groups(
                     v.packed.as_entire_binding(),
                 )),
             ),
-            scroll: [&v.result, &v.packed].map(|buffer| {
-                device.create_bind_group(
-                    "diffuse_gi_rh_scroll_bind_group",
-                    &layout(&pipelines.scroll_layout),
-                    &BindGroupEntries::sequential((uniform.clone(), v.delta[0].as_entire_binding(), buffer.as_entire_binding())),
-                )
-            }),
+            scroll: device.create_bind_group(
+                "diffuse_gi_rh_scroll_bind_group",
+                &layout(&pipelines.scroll_layout),
+                &BindGroupEntries::sequential((uniform.clone(), v.delta[0].as_entire_binding(), v.result.as_entire_binding())),
+            ),
         });
     }
 }

@@ -121,24 +121,19 @@ fn update_volumes(
                 continue;
             };
 
-            // The volume moved by whole cells: first carry its field along (each buffer is copied to
-            // `delta[0]`, which the injection overwrites next, and read back shifted).
+            // The volume moved by whole cells: first carry its field along (copied to `delta[0]`, which
+            // the injection overwrites next, and read back shifted). The packed form follows in the blend.
             if v.scroll.is_some()
-                && let (Some(field), Some(packed)) = (
-                    pipeline_cache.get_compute_pipeline(ids.scroll_field),
-                    pipeline_cache.get_compute_pipeline(ids.scroll_packed),
-                )
+                && let Some(scroll) = pipeline_cache.get_compute_pipeline(ids.scroll)
             {
-                for (buffer, pipeline, group) in [(&v.result, field, &groups.scroll[0]), (&v.packed, packed, &groups.scroll[1])] {
-                    ctx.command_encoder().copy_buffer_to_buffer(buffer, 0, &v.delta[0], 0, buffer.size());
-                    let mut pass = ctx.command_encoder().begin_compute_pass(&ComputePassDescriptor {
-                        label: Some("diffuse_gi_rh_scroll"),
-                        timestamp_writes: None,
-                    });
-                    pass.set_pipeline(pipeline);
-                    pass.set_bind_group(0, group, &[base]);
-                    pass.dispatch_workgroups(v.workgroups, 1, 1);
-                }
+                ctx.command_encoder().copy_buffer_to_buffer(&v.result, 0, &v.delta[0], 0, v.result.size());
+                let mut pass = ctx.command_encoder().begin_compute_pass(&ComputePassDescriptor {
+                    label: Some("diffuse_gi_rh_scroll"),
+                    timestamp_writes: None,
+                });
+                pass.set_pipeline(scroll);
+                pass.set_bind_group(0, &groups.scroll, &[base]);
+                pass.dispatch_workgroups(v.workgroups, 1, 1);
             }
 
             // Spans inside the passes: on lavapipe, timestamps written between compute passes do not

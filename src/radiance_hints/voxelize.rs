@@ -201,34 +201,14 @@ pub fn voxelize_scrolled(
     // New cell c holds what old cell c + shift held.
     let mut sums = vec![Vec4::ZERO; cells];
     let mut validity = vec![0.0f32; cells];
-    for z in 0..res.z {
-        for y in 0..res.y {
-            for x in 0..res.x {
-                let c = UVec3::new(x, y, z);
-                let old = c.as_ivec3() + shift;
-                if old.cmpge(IVec3::ZERO).all() && old.cmplt(res.as_ivec3()).all() {
-                    let (i, o) = (cell_index(c, res), cell_index(old.as_uvec3(), res));
-                    sums[i] = previous.albedo_sums[o];
-                    validity[i] = previous.albedo_validity[o].w;
-                }
-            }
-        }
+    for (i, o) in shifted_cells(res, shift) {
+        sums[i] = previous.albedo_sums[o];
+        validity[i] = previous.albedo_validity[o].w;
     }
-    let voxel_shift = shift * OCCUPANCY_FACTOR as i32;
     let mut occupancy = vec![0u32; previous.occupancy.len()];
-    for z in 0..occupancy_res.z {
-        for y in 0..occupancy_res.y {
-            for x in 0..occupancy_res.x {
-                let v = UVec3::new(x, y, z);
-                let old = v.as_ivec3() + voxel_shift;
-                if old.cmpge(IVec3::ZERO).all() && old.cmplt(occupancy_res.as_ivec3()).all() {
-                    let o = cell_index(old.as_uvec3(), occupancy_res);
-                    if previous.occupancy[o / 32] & (1 << (o % 32)) != 0 {
-                        let i = cell_index(v, occupancy_res);
-                        occupancy[i / 32] |= 1 << (i % 32);
-                    }
-                }
-            }
+    for (i, o) in shifted_cells(occupancy_res, shift * OCCUPANCY_FACTOR as i32) {
+        if previous.occupancy[o / 32] & (1 << (o % 32)) != 0 {
+            occupancy[i / 32] |= 1 << (i % 32);
         }
     }
     // The slabs that came into the box, one per axis it moved along (they may share corner cells:
@@ -263,6 +243,18 @@ pub fn voxelize_scrolled(
         a.w = v;
     }
     Some(GeometryVoxels { albedo_validity: albedo, occupancy, occupancy_resolution: occupancy_res, albedo_sums: sums, changed: VoxelChange::All })
+}
+
+/// For a `res` grid moved by `shift` cells: (index now, index before) of every cell that was in the grid
+/// before the move (cell c now is cell c + shift before).
+fn shifted_cells(res: UVec3, shift: IVec3) -> impl Iterator<Item = (usize, usize)> {
+    (0..res.z).flat_map(move |z| (0..res.y).flat_map(move |y| (0..res.x).map(move |x| UVec3::new(x, y, z)))).filter_map(
+        move |c| {
+            let old = c.as_ivec3() + shift;
+            (old.cmpge(IVec3::ZERO).all() && old.cmplt(res.as_ivec3()).all())
+                .then(|| (cell_index(c, res), cell_index(old.as_uvec3(), res)))
+        },
+    )
 }
 
 /// The cells of a `res` grid over the volume that the world box `lo..hi` touches, grown by `margin`.
