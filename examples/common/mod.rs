@@ -151,6 +151,8 @@ struct CiCapture {
     stem: PathBuf,
     first: u32,
     interval: u32,
+    /// `DIFFUSE_GI_CAPTURE_STEPS`: the most steps to take.
+    max_steps: usize,
     count: u32,
     written: Vec<PathBuf>,
 }
@@ -164,8 +166,9 @@ impl Plugin for CiCapturePlugin {
         let number = |name: &str, default: u32| std::env::var(name).ok().and_then(|f| f.parse().ok()).unwrap_or(default);
         let first = number("DIFFUSE_GI_CAPTURE_FRAME", 30).max(2);
         let interval = number("DIFFUSE_GI_CAPTURE_INTERVAL", 20).max(2);
+        let max_steps = number("DIFFUSE_GI_CAPTURE_STEPS", u32::MAX).max(1) as usize;
         app.insert_resource(bevy::time::TimeUpdateStrategy::ManualDuration(std::time::Duration::from_secs_f64(1.0 / 60.0)))
-            .insert_resource(CiCapture { stem, first, interval, count: 0, written: Vec::new() })
+            .insert_resource(CiCapture { stem, first, interval, max_steps, count: 0, written: Vec::new() })
             .add_systems(Startup, ci_window_size)
             .add_systems(Last, ci_capture);
     }
@@ -193,9 +196,7 @@ fn ci_capture(
 ) {
     use bevy::render::view::screenshot::{Screenshot, save_to_disk};
     let mut labels = steps.map_or_else(|| vec!["gi".to_string()], |s| s.0.clone());
-    if let Some(n) = std::env::var("DIFFUSE_GI_CAPTURE_STEPS").ok().and_then(|n| n.parse::<usize>().ok()) {
-        labels.truncate(n.max(1));
-    }
+    labels.truncate(capture.max_steps);
     capture.count += 1;
     let (count, first, interval) = (capture.count, capture.first, capture.interval);
     let shoot = |commands: &mut Commands, capture: &mut CiCapture, label: &str| {
