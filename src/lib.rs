@@ -196,12 +196,34 @@ impl GiPipelineErrors {
 }
 
 /// Records the plugin's pipelines (labels `diffuse_gi…`) in the error state into [`GiPipelineErrors`].
-fn check_pipelines(cache: Res<bevy::render::render_resource::PipelineCache>, errors: Res<GiPipelineErrors>) {
+/// Pipelines are only appended to the cache and settle once (compiled or failed): each frame looks only
+/// at those from the first one not settled yet, so a frame whose pipelines are all ready costs nothing.
+fn check_pipelines(
+    cache: Res<bevy::render::render_resource::PipelineCache>,
+    errors: Res<GiPipelineErrors>,
+    mut settled: Local<usize>,
+) {
     use bevy::render::render_resource::{CachedPipelineState, PipelineDescriptor};
-    for pipeline in cache.pipelines() {
+    use bevy::shader::ShaderCacheError;
+    let mut all_settled = true;
+    for pipeline in cache.pipelines().skip(*settled) {
+        // A shader (or import) not loaded yet is retried by the cache: neither settled nor an error.
+        let waiting = matches!(
+            pipeline.state,
+            CachedPipelineState::Queued
+                | CachedPipelineState::Creating(_)
+                | CachedPipelineState::Err(ShaderCacheError::ShaderNotLoaded(_) | ShaderCacheError::ShaderImportNotYetAvailable)
+        );
+        all_settled &= !waiting;
+        if all_settled {
+            *settled += 1;
+        }
         let CachedPipelineState::Err(error) = &pipeline.state else {
             continue;
         };
+        if waiting {
+            continue;
+        }
         let label = match &pipeline.descriptor {
             PipelineDescriptor::RenderPipelineDescriptor(d) => d.label.as_deref(),
             PipelineDescriptor::ComputePipelineDescriptor(d) => d.label.as_deref(),

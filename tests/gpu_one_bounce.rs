@@ -264,3 +264,45 @@ fn asking_a_per_pixel_method_for_the_irradiance_volume_output_composites_instead
         format!("IrradianceVolume asked of the RSM gather: {a:.1}, composited {c:.1}, no GI {n:.1}"),
     );
 }
+
+#[test]
+fn a_plugin_pipeline_that_fails_to_compile_fails_the_headless_run() {
+    // A `diffuse_gi…` pipeline whose shader naga rejects, queued on the fourth frame, after the plugin's
+    // own pipelines settled (the check then looks only at pipelines newer than those): the run must
+    // fail and name it, not render on with the pass silently missing.
+    use bevy::prelude::*;
+    use bevy::render::render_resource::{ComputePipelineDescriptor, PipelineCache};
+    use bevy::render::{Render, RenderApp};
+    #[derive(Resource, Clone)]
+    struct Broken(Handle<Shader>);
+    let options = HeadlessOptions {
+        scene: StandardScene::Cornell,
+        method: HeadlessMethod::Gi(GiMethod::RsmGather),
+        indirect_only: true,
+        frames: 8,
+        ..Default::default()
+    };
+    let _guard = common::render_lock();
+    let result = bevy_diffuse_gi::headless::run_with(&options, |app| {
+        let shader = app.world_mut().resource_mut::<Assets<Shader>>().add(Shader::from_wgsl(
+            "@compute @workgroup_size(1) fn main() { let x: f32 = 1u; }",
+            "broken_for_test.wgsl",
+        ));
+        app.sub_app_mut(RenderApp).insert_resource(Broken(shader)).add_systems(
+            Render,
+            |cache: Res<PipelineCache>, broken: Res<Broken>, mut frame: Local<u32>| {
+                *frame += 1;
+                if *frame == 4 {
+                    cache.queue_compute_pipeline(ComputePipelineDescriptor {
+                        label: Some("diffuse_gi_test_broken".into()),
+                        shader: broken.0.clone(),
+                        entry_point: Some("main".into()),
+                        ..default()
+                    });
+                }
+            },
+        );
+    });
+    let error = result.expect_err("a run with a broken plugin pipeline must fail");
+    assert!(error.contains("diffuse_gi_test_broken"), "the error must name the pipeline: {error}");
+}
