@@ -38,28 +38,16 @@ pub struct RhIrradianceExport {
     resolution: UVec3,
 }
 
-/// Warns once per entity and field about clamped settings.
-pub(crate) fn validate_settings(
-    volumes: Query<(Entity, &RadianceHintsVolume), Changed<RadianceHintsVolume>>,
+/// Warns once per light about an RSM resolution it does not get (the volume's own settings are checked
+/// by the shared [`crate::settings::validate_settings`]).
+pub(crate) fn validate_lights(
     lights: Query<(Entity, &GiLight), Changed<GiLight>>,
-    mut warned: Local<HashSet<(Entity, &'static str)>>,
+    mut warned: Local<HashSet<Entity>>,
     mut warnings: ResMut<crate::DiffuseGiWarnings>,
 ) {
-    for (entity, volume) in &volumes {
-        let (clamped, fields) = volume.sanitized();
-        for field in fields {
-            if warned.insert((entity, field)) {
-                let value = field_value(&clamped, field);
-                crate::gi_warning(
-                    &mut warnings,
-                    format!("bevy_diffuse_gi: RadianceHintsVolume on {entity}: invalid `{field}`, using {value}"),
-                );
-            }
-        }
-    }
     for (entity, light) in &lights {
         let r = light.rsm_resolution;
-        if !(GiLight::MIN_RSM_RESOLUTION..=GiLight::MAX_RSM_RESOLUTION).contains(&r) && warned.insert((entity, "rsm_resolution")) {
+        if !(GiLight::MIN_RSM_RESOLUTION..=GiLight::MAX_RSM_RESOLUTION).contains(&r) && warned.insert(entity) {
             crate::gi_warning(
                 &mut warnings,
                 format!(
@@ -69,26 +57,6 @@ pub(crate) fn validate_settings(
                 ),
             );
         }
-    }
-}
-
-fn field_value(v: &RadianceHintsVolume, field: &str) -> String {
-    match field {
-        "resolution" => format!("{}", v.resolution),
-        "sizing" => format!("{:?}", v.sizing),
-        "rsm_samples" => v.rsm_samples.to_string(),
-        "rsm_coverage" => v.rsm_coverage.to_string(),
-        "jitter" => v.jitter.to_string(),
-        "extra_bounces" => v.extra_bounces.to_string(),
-        "secondary_samples" => v.secondary_samples.to_string(),
-        "r_max" => v.r_max.to_string(),
-        "bounce_threshold" => v.bounce_threshold.to_string(),
-        "temporal_blend" => v.temporal_blend.to_string(),
-        "refinement_updates" => v.refinement_updates.to_string(),
-        "reconstruction_samples" => v.reconstruction_samples.to_string(),
-        "intensity" => v.intensity.to_string(),
-        "near_field_occlusion" => v.near_field_occlusion.to_string(),
-        _ => format!("{:?}", v.depth_occlusion),
     }
 }
 

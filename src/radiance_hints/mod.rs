@@ -275,7 +275,8 @@ impl Plugin for RadianceHintsPlugin {
             .add_systems(
                 PostUpdate,
                 (
-                    extract::validate_settings,
+                    crate::settings::validate_settings::<RadianceHintsVolume>,
+                    extract::validate_lights,
                     extract::validate_transforms,
                     extract::ensure_snapshot,
                     extract::manage_irradiance_exports,

@@ -3,6 +3,7 @@
 use bevy::math::UVec3;
 use bevy::prelude::*;
 
+use crate::settings::{Clamped, GiSettings};
 use crate::sh::ShOrder;
 
 /// A box of space lit by Radiance Hints (Papaioannou 2011): a grid of radiance probes ("hints") that sample
@@ -338,61 +339,6 @@ impl RadianceHintsVolume {
     /// Most hints accepted in one volume.
     pub const MAX_HINTS: u32 = 1 << 18;
 
-    /// A copy with every field inside its documented range, and the names of the fields that were
-    /// changed (for one warning each).
-    pub fn sanitized(&self) -> (Self, Vec<&'static str>) {
-        fn fix_u32(v: &mut u32, lo: u32, hi: u32, name: &'static str, changed: &mut Vec<&'static str>) {
-            let c = (*v).clamp(lo, hi);
-            if c != *v {
-                *v = c;
-                changed.push(name);
-            }
-        }
-        fn fix_f32(v: &mut f32, lo: f32, hi: f32, default: f32, name: &'static str, changed: &mut Vec<&'static str>) {
-            let c = if v.is_nan() { default } else { v.clamp(lo, hi) };
-            if c != *v {
-                *v = c;
-                changed.push(name);
-            }
-        }
-        let mut s = self.clone();
-        let mut changed = Vec::new();
-        let c = &mut changed;
-        let mut r = s.resolution;
-        fix_u32(&mut r.x, 2, 128, "resolution", c);
-        fix_u32(&mut r.y, 2, 128, "resolution", c);
-        fix_u32(&mut r.z, 2, 128, "resolution", c);
-        while r.x * r.y * r.z > Self::MAX_HINTS {
-            r = (r.as_vec3() * 0.9).as_uvec3().max(UVec3::splat(2));
-            c.push("resolution");
-        }
-        s.resolution = r;
-        if let GridSizing::Adaptive { hints, max_cell, max_hints } = &mut s.sizing {
-            fix_u32(hints, 8, Self::MAX_HINTS, "sizing", c);
-            fix_u32(max_hints, *hints, Self::MAX_HINTS, "sizing", c);
-            fix_f32(max_cell, 0.01, 100.0, 0.35, "sizing", c);
-        }
-        fix_u32(&mut s.rsm_samples, 1, 1024, "rsm_samples", c);
-        fix_u32(&mut s.extra_bounces, 0, 16, "extra_bounces", c);
-        fix_u32(&mut s.secondary_samples, 1, 256, "secondary_samples", c);
-        fix_u32(&mut s.reconstruction_samples, 1, 16, "reconstruction_samples", c);
-        fix_u32(&mut s.refinement_updates, 0, 256, "refinement_updates", c);
-        fix_f32(&mut s.rsm_coverage, 0.01, 1.0, 1.0, "rsm_coverage", c);
-        fix_f32(&mut s.jitter, 0.0, 1.0, 1.0, "jitter", c);
-        fix_f32(&mut s.bounce_threshold, 0.0, 1.0, 0.01, "bounce_threshold", c);
-        fix_f32(&mut s.temporal_blend, 0.05, 1.0, 0.5, "temporal_blend", c);
-        fix_f32(&mut s.intensity, 0.0, 100.0, 1.0, "intensity", c);
-        fix_f32(&mut s.near_field_occlusion, 0.0, 2.0, 0.0, "near_field_occlusion", c);
-        if s.r_max != 0.0 {
-            fix_f32(&mut s.r_max, 0.01, 10_000.0, 0.0, "r_max", c);
-        }
-        if let Some(o) = &mut s.depth_occlusion {
-            fix_u32(&mut o.samples, 1, 16, "depth_occlusion.samples", c);
-            fix_f32(&mut o.strength, 0.0, 1.0, 0.5, "depth_occlusion.strength", c);
-        }
-        changed.dedup();
-        (s, changed)
-    }
 
     /// The settings the plugin runs for a box of `size` metres: [`sizing`](Self::sizing) applied, so that
     /// [`resolution`](Self::resolution) holds the hints in use and the sizing is [`GridSizing::Fixed`].
@@ -466,6 +412,55 @@ impl Default for RadianceHintsVolume {
     }
 }
 
+impl GiSettings for RadianceHintsVolume {
+    const NAME: &'static str = "RadianceHintsVolume";
+
+    fn sanitized(&self) -> (Self, Vec<(&'static str, String)>) {
+        let mut s = self.clone();
+        let mut c = Clamped::default();
+        let mut r = s.resolution;
+        for axis in [&mut r.x, &mut r.y, &mut r.z] {
+            *axis = (*axis).clamp(2, 128);
+        }
+        while r.x * r.y * r.z > Self::MAX_HINTS {
+            r = (r.as_vec3() * 0.9).as_uvec3().max(UVec3::splat(2));
+        }
+        if r != s.resolution {
+            s.resolution = r;
+            c.fields.push(("resolution", r.to_string()));
+        }
+        if let GridSizing::Adaptive { hints, max_cell, max_hints } = &mut s.sizing {
+            let before = (*hints, *max_cell, *max_hints);
+            let mut ignored = Clamped::default();
+            ignored.uint(hints, 8, Self::MAX_HINTS, "sizing");
+            ignored.uint(max_hints, *hints, Self::MAX_HINTS, "sizing");
+            ignored.float(max_cell, 0.01, 100.0, 0.35, "sizing");
+            if before != (*hints, *max_cell, *max_hints) {
+                c.fields.push(("sizing", format!("{:?}", s.sizing)));
+            }
+        }
+        c.uint(&mut s.rsm_samples, 1, 1024, "rsm_samples");
+        c.uint(&mut s.extra_bounces, 0, 16, "extra_bounces");
+        c.uint(&mut s.secondary_samples, 1, 256, "secondary_samples");
+        c.uint(&mut s.reconstruction_samples, 1, 16, "reconstruction_samples");
+        c.uint(&mut s.refinement_updates, 0, 256, "refinement_updates");
+        c.float(&mut s.rsm_coverage, 0.01, 1.0, 1.0, "rsm_coverage");
+        c.float(&mut s.jitter, 0.0, 1.0, 1.0, "jitter");
+        c.float(&mut s.bounce_threshold, 0.0, 1.0, 0.01, "bounce_threshold");
+        c.float(&mut s.temporal_blend, 0.05, 1.0, 0.5, "temporal_blend");
+        c.float(&mut s.intensity, 0.0, 100.0, 1.0, "intensity");
+        c.float(&mut s.near_field_occlusion, 0.0, 2.0, 0.0, "near_field_occlusion");
+        if s.r_max != 0.0 {
+            c.float(&mut s.r_max, 0.01, 10_000.0, 0.0, "r_max");
+        }
+        if let Some(o) = &mut s.depth_occlusion {
+            c.uint(&mut o.samples, 1, 16, "depth_occlusion.samples");
+            c.float(&mut o.strength, 0.0, 1.0, 0.5, "depth_occlusion.strength");
+        }
+        (s, c.fields)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -510,13 +505,15 @@ mod tests {
         assert_eq!(s.secondary_samples, 1);
         assert_eq!(s.r_max, 0.01);
         assert_eq!(s.temporal_blend, 0.05);
-        assert_eq!(s.intensity, 100.0);
+        assert_eq!(s.intensity, 1.0, "a non-finite value takes the default");
         assert_eq!(s.depth_occlusion, Some(DepthOcclusion { samples: 1, strength: 0.5 }));
         assert_eq!(s.near_field_occlusion, 2.0);
         assert_eq!(RadianceHintsVolume { near_field_occlusion: f32::NAN, ..default() }.sanitized().0.near_field_occlusion, 0.0);
         for name in ["resolution", "rsm_samples", "rsm_coverage", "jitter", "extra_bounces", "r_max", "intensity", "near_field_occlusion"] {
-            assert!(changed.contains(&name), "{name} missing from {changed:?}");
+            assert!(changed.iter().any(|(field, _)| *field == name), "{name} missing from {changed:?}");
         }
+        let (_, jitter) = changed.iter().find(|(field, _)| *field == "jitter").unwrap();
+        assert_eq!(jitter, "0", "the warning names the value used");
         // Clamping is idempotent.
         assert!(s.sanitized().1.is_empty());
     }
