@@ -549,6 +549,73 @@ fn moving_volume(step: f32) -> (HdrImage, Vec<bevy_diffuse_gi::radiance_hints::R
     (report.image, seen)
 }
 
+/// `cornell` with its volume 1.5× the box and one cell further along x: placed there from the start, or
+/// (`moved`) moved there on the eighth frame. Returns the volume as [`RhVolumeDump`] writes it after the
+/// last frame.
+///
+/// [`RhVolumeDump`]: bevy_diffuse_gi::radiance_hints::dump::RhVolumeDump
+fn volume_one_cell_along(moved: bool, name: &str) -> serde_json::Value {
+    use bevy::prelude::*;
+    let dir = common::failure_dir(name);
+    std::fs::create_dir_all(&dir).expect("the test output folder");
+    let path = dir.join("volume.json");
+    let options = HeadlessOptions {
+        scene: StandardScene::Cornell,
+        method: HeadlessMethod::Gi(GiMethod::RadianceHints),
+        indirect_only: true,
+        frames: 16,
+        ..Default::default()
+    };
+    let _guard = common::render_lock();
+    bevy_diffuse_gi::headless::run_with(&options, |app| {
+        app.insert_resource(bevy_diffuse_gi::radiance_hints::dump::RhVolumeDump { path: path.clone() });
+        app.add_systems(
+            Update,
+            move |mut frame: Local<u32>,
+                  mut home: Local<Option<Transform>>,
+                  mut volumes: Query<(&RadianceHintsVolume, &mut Transform)>| {
+                let Ok((volume, mut transform)) = volumes.single_mut() else {
+                    return;
+                };
+                let home = *home.get_or_insert_with(|| Transform { scale: transform.scale * 1.5, ..*transform });
+                *frame += 1;
+                let cell = home.scale.x / volume.effective(home.to_matrix()).resolution.x as f32;
+                let offset = if !moved || *frame >= 8 { cell } else { 0.0 };
+                let next = Transform { translation: home.translation + Vec3::X * offset, ..home };
+                if *transform != next {
+                    *transform = next;
+                }
+            },
+        );
+    })
+    .expect("render");
+    serde_json::from_str(&std::fs::read_to_string(&path).expect("the volume dump")).expect("dump JSON")
+}
+
+#[test]
+fn a_scrolled_volume_shifts_its_visibility_masks_to_what_a_fresh_volume_computes() {
+    // After a scroll the reconstruction's per-voxel hint masks are shifted with the volume and recomputed
+    // only within a cell of the faces the move crossed (`visibility.wgsl`), not redone for the whole grid.
+    // They must equal the masks of a volume that stood there from the start (a full computation).
+    let scrolled = volume_one_cell_along(true, "rh_masks_scrolled");
+    let fresh = volume_one_cell_along(false, "rh_masks_fresh");
+    assert_eq!(scrolled["last_visibility_update"], "Shifted", "the scrolled volume must shift its masks");
+    assert_eq!(fresh["last_visibility_update"], "All");
+    assert_eq!(scrolled["world_from_local"], fresh["world_from_local"], "both volumes end at the same place");
+    let words = |v: &serde_json::Value| -> Vec<u32> {
+        v["visibility"].as_array().expect("masks").iter().map(|w| w.as_u64().expect("word") as u32).collect()
+    };
+    let res: Vec<u64> = fresh["occupancy_resolution"].as_array().unwrap().iter().map(|r| r.as_u64().unwrap()).collect();
+    let voxels = (res[0] * res[1] * res[2]) as usize;
+    let (a, b) = (words(&scrolled), words(&fresh));
+    let byte = |w: &[u32], i: usize| (w[i / 4] >> (8 * (i % 4))) & 0xff;
+    let differing = (0..voxels).filter(|&i| byte(&a, i) != byte(&b, i)).count();
+    let used = (0..voxels).filter(|&i| byte(&b, i) != 0).count();
+    eprintln!("rh_scrolled_masks: {differing} of {voxels} voxel masks differ ({used} non-empty)");
+    assert!(used > voxels / 2, "the fresh volume's masks must be computed: {used} of {voxels} non-empty");
+    assert_eq!(differing, 0, "{differing} of {voxels} shifted masks differ from a fresh volume's");
+}
+
 #[test]
 fn a_volume_moving_by_whole_cells_scrolls_its_field_with_it() {
     // A cascade level moves a whole cell at a time as its camera walks. Its field is scrolled with it

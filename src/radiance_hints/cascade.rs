@@ -12,8 +12,9 @@
 //! # Cost
 //! Each level costs what a volume of its hint count costs (memory, updates, voxelisation); the
 //! per-pixel reconstruction runs once per level that covers the pixel. A still camera in a still scene
-//! updates nothing. A level that moves pays for one slab of voxels on the CPU, a copy of its field and
-//! the amortised updates while the camera keeps moving.
+//! updates nothing. A level that moves pays for one slab of voxels on the CPU, a copy of its field, a
+//! copy of its reconstruction masks with those within a cell of its faces recomputed (about 10 ms instead
+//! of 25 for 64³ voxels on lavapipe), and the amortised updates while the camera keeps moving.
 
 use bevy::prelude::*;
 

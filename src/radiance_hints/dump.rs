@@ -13,14 +13,15 @@ use serde_json::json;
 use super::prepare::RhVolumesGpu;
 use super::sh_floats;
 
-/// Write the first Radiance Hints volume to `path` (JSON: resolution, SH order, `world_from_local`, and per
-/// hint the SH coefficients, distances and albedo/validity) after every rendered frame.
+/// Write the first Radiance Hints volume to `path` (JSON: resolution, SH order, `world_from_local`, per
+/// hint the SH coefficients, distances and albedo/validity, the reconstruction's visibility masks (four
+/// voxels per word) and how they were last updated) after every rendered frame.
 #[derive(Resource, Clone, Debug, ExtractResource)]
 pub struct RhVolumeDump {
     pub path: PathBuf,
 }
 
-fn read_buffer(device: &RenderDevice, queue: &RenderQueue, source: &Buffer) -> Vec<f32> {
+fn read_buffer<T: bytemuck::Pod>(device: &RenderDevice, queue: &RenderQueue, source: &Buffer) -> Vec<T> {
     let size = source.size();
     let staging = device.create_buffer(&BufferDescriptor {
         label: Some("diffuse_gi_rh_dump_staging"),
@@ -35,7 +36,7 @@ fn read_buffer(device: &RenderDevice, queue: &RenderQueue, source: &Buffer) -> V
     slice.map_async(MapMode::Read, |_| {});
     let _ = device.wgpu_device().poll(PollType::wait_indefinitely());
     let data = slice.get_mapped_range();
-    bytemuck::cast_slice::<u8, f32>(&data).to_vec()
+    bytemuck::cast_slice::<u8, T>(&data).to_vec()
 }
 
 pub(crate) fn dump_volume(
@@ -49,9 +50,10 @@ pub(crate) fn dump_volume(
     };
     let floats = sh_floats(v.settings.sh_order);
     let hints = v.hints as usize;
-    let result = read_buffer(&device, &queue, &v.result);
-    let distances = read_buffer(&device, &queue, &v.distances);
-    let albedo = read_buffer(&device, &queue, &v.albedo);
+    let result = read_buffer::<f32>(&device, &queue, &v.result);
+    let distances = read_buffer::<f32>(&device, &queue, &v.distances);
+    let albedo = read_buffer::<f32>(&device, &queue, &v.albedo);
+    let visibility = read_buffer::<u32>(&device, &queue, &v.visibility);
     let text = json!({
         "resolution": v.settings.resolution.to_array(),
         "sh_coefficients": v.settings.sh_order.coefficients(),
@@ -60,6 +62,9 @@ pub(crate) fn dump_volume(
         "sh": result[..hints * floats].to_vec(),
         "distances": distances[..hints * 4].to_vec(),
         "albedo_validity": albedo[..hints * 4].to_vec(),
+        "occupancy_resolution": v.occupancy_resolution.to_array(),
+        "visibility": visibility,
+        "last_visibility_update": format!("{:?}", v.last_visibility_update),
     });
     if let Err(e) = std::fs::write(&dump.path, text.to_string()) {
         warn_once!("bevy_diffuse_gi: cannot write the volume dump {}: {e}", dump.path.display());

@@ -69,6 +69,10 @@ pub struct VisibilityRegion {
     pub origin: UVec4,
     /// Words along x, voxels along y and z.
     pub size: UVec4,
+    /// After a scroll ([`VoxelChange::Scrolled`]): xyz, the voxel shift (voxel `v` now holds what `v +
+    /// shift` held); w = 1 copies the masks of voxels more than a cell from the old and new faces from
+    /// the masks before the move instead of recomputing them. w = 0: recompute the region.
+    pub shift: IVec4,
 }
 
 impl VisibilityRegion {
@@ -81,6 +85,7 @@ impl VisibilityRegion {
         Self {
             origin: UVec4::new(x0, lo.y, lo.z, 0),
             size: UVec4::new(words, hi.y - lo.y + 1, hi.z - lo.z + 1, 0),
+            shift: IVec4::ZERO,
         }
     }
 
@@ -88,6 +93,20 @@ impl VisibilityRegion {
     pub fn words(&self) -> u32 {
         self.size.x * self.size.y * self.size.z
     }
+}
+
+/// How a volume's visibility masks were last redone.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum VisibilityUpdate {
+    /// Not yet.
+    #[default]
+    None,
+    /// Every voxel (a full voxelisation).
+    All,
+    /// The voxels around an incremental voxelisation's change.
+    Region,
+    /// Shifted with a scroll, recomputed within a cell of the faces.
+    Shifted,
 }
 
 /// The volume passes.
@@ -226,7 +245,7 @@ impl FromWorld for RhPipelines {
             ),
             visibility_output_layout: BindGroupLayoutDescriptor::new(
                 "diffuse_gi_rh_visibility_output_layout",
-                &BindGroupLayoutEntries::sequential(compute, (uniform_buffer::<VisibilityRegion>(false), rw())),
+                &BindGroupLayoutEntries::sequential(compute, (uniform_buffer::<VisibilityRegion>(false), rw(), ro())),
             ),
             lookup_layout: BindGroupLayoutDescriptor::new(
                 "diffuse_gi_rh_lookup_layout",
@@ -396,6 +415,11 @@ pub struct RhVolumeGpu {
     pub occupancy: Buffer,
     /// Per occupancy voxel, the mask of its stencil's hints a lookup may use (8 bits, 4 voxels a word).
     pub visibility: Buffer,
+    /// The masks before a scroll, copied for `visibility.wgsl` to shift; made on the volume's first
+    /// scroll (a still volume does not pay for it).
+    pub visibility_previous: Option<Buffer>,
+    /// How the masks were last redone (for measurements and tests).
+    pub last_visibility_update: VisibilityUpdate,
     /// The displayed result in the reconstruction's compact irradiance form (`rh_packed.wgsl`, 16 B per
     /// hint), written by the blend.
     pub packed: Buffer,
@@ -607,6 +631,8 @@ impl RhVolumeGpu {
                 storage,
             ),
             visibility: buffer(device, "diffuse_gi_rh_visibility", occupancy_words(settings.resolution) * 32, storage),
+            visibility_previous: None,
+            last_visibility_update: VisibilityUpdate::None,
             packed: buffer(device, "diffuse_gi_rh_packed", hints as u64 * 16, storage),
             visibility_region: buffer(
                 device,
@@ -664,7 +690,8 @@ impl RhVolumeGpu {
         [&self.delta[0], &self.delta[1], &self.sum, &self.result, &self.distances, &self.albedo, &self.occupancy, &self.visibility, &self.packed]
             .iter()
             .map(|b| b.size())
-            .sum()
+            .sum::<u64>()
+            + self.visibility_previous.as_ref().map_or(0, |b| b.size())
     }
 }
 
@@ -755,8 +782,27 @@ pub(crate) fn prepare_rh_volumes(
                     Some(VisibilityRegion::covering(lo.saturating_sub(margin), hi + margin, res))
                 }
                 VoxelChange::Nothing if follows => None,
+                // A scroll by whole words along x: shift the masks, recompute only near the faces.
+                VoxelChange::Scrolled(shift) if follows && shift.x % 4 == 0 => Some(VisibilityRegion { shift: shift.extend(1), ..all }),
                 _ => Some(all),
             };
+            if region.is_some_and(|r| r.shift.w != 0) && gpu.visibility_previous.is_none() {
+                gpu.visibility_previous = Some(buffer(
+                    &device,
+                    "diffuse_gi_rh_visibility_previous",
+                    gpu.visibility.size(),
+                    BufferUsages::STORAGE | BufferUsages::COPY_DST,
+                ));
+            }
+            if let Some(r) = region {
+                gpu.last_visibility_update = if r.shift.w != 0 {
+                    VisibilityUpdate::Shifted
+                } else if r == all {
+                    VisibilityUpdate::All
+                } else {
+                    VisibilityUpdate::Region
+                };
+            }
             gpu.visibility_pending = region;
             gpu.voxel_generation = Some(voxel_generation);
         }
@@ -984,7 +1030,12 @@ pub(crate) fn prepare_rh_bind_groups(
             visibility_output: device.create_bind_group(
                 "diffuse_gi_rh_visibility_output_bind_group",
                 &layout(&pipelines.visibility_output_layout),
-                &BindGroupEntries::sequential((v.visibility_region.as_entire_binding(), v.visibility.as_entire_binding())),
+                &BindGroupEntries::sequential((
+                    v.visibility_region.as_entire_binding(),
+                    v.visibility.as_entire_binding(),
+                    // Read only after a scroll; until the first, any buffer this pass only reads.
+                    v.visibility_previous.as_ref().unwrap_or(&v.occupancy).as_entire_binding(),
+                )),
             ),
             lookup: device.create_bind_group(
                 "diffuse_gi_rh_lookup_bind_group",

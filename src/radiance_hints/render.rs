@@ -240,6 +240,12 @@ fn prepare_visibility_masks(state: &mut RhVolumesGpu, pipeline_cache: &PipelineC
     if !state.volumes.iter().any(|v| v.visibility_pending.is_some()) {
         return;
     }
+    // A scrolled volume shifts its masks from a copy of them (`visibility.wgsl`).
+    for v in &state.volumes {
+        if let (Some(previous), Some(_)) = (&v.visibility_previous, v.visibility_pending.filter(|r| r.shift.w != 0)) {
+            ctx.command_encoder().copy_buffer_to_buffer(&v.visibility, 0, previous, 0, v.visibility.size());
+        }
+    }
     let diagnostics = ctx.diagnostic_recorder();
     let diagnostics = diagnostics.as_deref();
     let mut pass = ctx.command_encoder().begin_compute_pass(&ComputePassDescriptor {

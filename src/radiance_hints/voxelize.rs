@@ -56,6 +56,10 @@ pub enum VoxelChange {
     Voxels(UVec3, UVec3),
     /// Nothing.
     Nothing,
+    /// The volume moved by whole cells ([`voxelize_scrolled`]): occupancy voxel `v` now holds what voxel
+    /// `v + shift` held before; what came into the box and the voxels within a cell of the old and new
+    /// faces are new.
+    Scrolled(IVec3),
 }
 
 /// The occupancy grid resolution for a hint grid.
@@ -242,7 +246,13 @@ pub fn voxelize_scrolled(
     for (a, v) in albedo.iter_mut().zip(validity) {
         a.w = v;
     }
-    Some(GeometryVoxels { albedo_validity: albedo, occupancy, occupancy_resolution: occupancy_res, albedo_sums: sums, changed: VoxelChange::All })
+    Some(GeometryVoxels {
+        albedo_validity: albedo,
+        occupancy,
+        occupancy_resolution: occupancy_res,
+        albedo_sums: sums,
+        changed: VoxelChange::Scrolled(shift * OCCUPANCY_FACTOR as i32),
+    })
 }
 
 /// For a `res` grid moved by `shift` cells: (index now, index before) of every cell that was in the grid
