@@ -490,8 +490,8 @@ fn cellar_ceiling_junctions_hold_no_outlier_pixels() {
 
 #[test]
 #[ignore = "issue #13: where the dividing and right walls meet near the floor, 6 pixels (181–182, 154–157) \
-            read 3.2× the truth: the truth darkens the concave corner over about a cell, below what the hints \
-            resolve (near-field occlusion, off by default because its voxel rays raised the error)"]
+            read 3.2× the truth: the dividing wall hides the door the hints see, below their scale. A lobe \
+            contact shadow fixes them but costs 1.43× → 1.71× per frame (docs/radiance_hints.md)"]
 fn cellar_floor_junctions_hold_no_outlier_pixels() {
     assert_no_cellar_junction_outliers("rh_cellar_floor_junctions", 120..256);
 }
