@@ -218,12 +218,9 @@ fn check_pipelines(
         if all_settled {
             *settled += 1;
         }
-        let CachedPipelineState::Err(error) = &pipeline.state else {
+        let (false, CachedPipelineState::Err(error)) = (waiting, &pipeline.state) else {
             continue;
         };
-        if waiting {
-            continue;
-        }
         let label = match &pipeline.descriptor {
             PipelineDescriptor::RenderPipelineDescriptor(d) => d.label.as_deref(),
             PipelineDescriptor::ComputePipelineDescriptor(d) => d.label.as_deref(),

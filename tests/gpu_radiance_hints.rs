@@ -496,7 +496,20 @@ fn cellar_floor_junctions_hold_no_outlier_pixels() {
     assert_no_cellar_junction_outliers("rh_cellar_floor_junctions", 120..256);
 }
 
-/// `cornell` with its volume 1.5× the box (so that moving it a cell keeps the box inside). With a
+/// Places `cornell`'s volume at 1.5× the box it was fitted to (so that moving it a cell keeps the box
+/// inside), `cells` of its cells along x. `home` keeps the first placement seen.
+/// The transform is written only when it changes (no change detection otherwise).
+fn place_volume(home: &mut Option<bevy::prelude::Transform>, volume: &RadianceHintsVolume, transform: &mut bevy::prelude::Mut<bevy::prelude::Transform>, cells: f32) {
+    use bevy::prelude::*;
+    let home = *home.get_or_insert_with(|| Transform { scale: transform.scale * 1.5, ..**transform });
+    let cell = home.scale.x / volume.effective(home.to_matrix()).resolution.x as f32;
+    let next = Transform { translation: home.translation + Vec3::X * (cells * cell), ..home };
+    if **transform != next {
+        **transform = next;
+    }
+}
+
+/// `cornell` with its volume 1.5× the box (see [`place_volume`]). With a
 /// positive `step` the volume jumps `step` cells along x and back every frame; with a negative one it
 /// stays and the light's intensity changes by 0.01 % every frame instead (inputs that change every frame, as a moving light's
 /// do, without moving anything). Returns the image and the activity the panel shows, frame by frame.
@@ -525,22 +538,17 @@ fn moving_volume(step: f32) -> (HdrImage, Vec<bevy_diffuse_gi::radiance_hints::R
                 let Ok((entity, volume, mut transform)) = volumes.single_mut() else {
                     return;
                 };
-                let home = *home.get_or_insert_with(|| Transform { scale: transform.scale * 1.5, ..*transform });
                 *frame += 1;
                 if let Some(a) = activity.get(entity) {
                     record.lock().unwrap().push(a);
                 }
-                let cell = home.scale.x / volume.effective(home.to_matrix()).resolution.x as f32;
-                let offset = if step > 0.0 && *frame > 3 && frame.is_multiple_of(2) { step * cell } else { 0.0 };
+                let cells = if step > 0.0 && *frame > 3 && frame.is_multiple_of(2) { step } else { 0.0 };
                 if step < 0.0 && *frame > 3 {
                     for mut light in &mut lights {
                         light.intensity *= if frame.is_multiple_of(2) { 1.0001 } else { 1.0 / 1.0001 };
                     }
                 }
-                let next = Transform { translation: home.translation + Vec3::X * offset, ..home };
-                if *transform != next {
-                    *transform = next;
-                }
+                place_volume(&mut home, volume, &mut transform, cells);
             },
         );
     })
@@ -549,7 +557,7 @@ fn moving_volume(step: f32) -> (HdrImage, Vec<bevy_diffuse_gi::radiance_hints::R
     (report.image, seen)
 }
 
-/// `cornell` with its volume 1.5× the box and one cell further along x: placed there from the start, or
+/// `cornell` with its volume one cell further along x (see [`place_volume`]): placed there from the start, or
 /// (`moved`) moved there on the eighth frame. Returns the volume as [`RhVolumeDump`] writes it after the
 /// last frame.
 ///
@@ -577,14 +585,8 @@ fn volume_one_cell_along(moved: bool, name: &str) -> serde_json::Value {
                 let Ok((volume, mut transform)) = volumes.single_mut() else {
                     return;
                 };
-                let home = *home.get_or_insert_with(|| Transform { scale: transform.scale * 1.5, ..*transform });
                 *frame += 1;
-                let cell = home.scale.x / volume.effective(home.to_matrix()).resolution.x as f32;
-                let offset = if !moved || *frame >= 8 { cell } else { 0.0 };
-                let next = Transform { translation: home.translation + Vec3::X * offset, ..home };
-                if *transform != next {
-                    *transform = next;
-                }
+                place_volume(&mut home, volume, &mut transform, if !moved || *frame >= 8 { 1.0 } else { 0.0 });
             },
         );
     })
