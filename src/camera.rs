@@ -104,6 +104,11 @@ pub enum GiMethod {
     /// solid angle. One bounce, no indirect shadows; the cheapest method. Settings:
     /// [`DrmSettings`](crate::drm::DrmSettings) on the camera.
     Drm,
+    /// Hierarchical radiosity with implicit visibility (Dong et al. 2007): multi-bounce light between
+    /// surface elements at mesh vertices, visibility from the shortest link per cube-map bin, solved on
+    /// the CPU; no reflective shadow map and no volume, and emissive meshes light the scene. Settings:
+    /// [`RadiositySettings`](crate::radiosity::RadiositySettings) on the camera.
+    Radiosity,
 }
 
 impl serde::Serialize for GiMethod {
@@ -114,7 +119,7 @@ impl serde::Serialize for GiMethod {
 
 impl GiMethod {
     /// Every method, for menus.
-    pub const ALL: [GiMethod; 4] = [GiMethod::RadianceHints, GiMethod::Vpl, GiMethod::RsmGather, GiMethod::Drm];
+    pub const ALL: [GiMethod; 5] = [GiMethod::RadianceHints, GiMethod::Vpl, GiMethod::RsmGather, GiMethod::Drm, GiMethod::Radiosity];
 
     /// Short name, as the headless renderer's `--method` spells it.
     pub const fn name(self) -> &'static str {
@@ -123,6 +128,7 @@ impl GiMethod {
             GiMethod::Vpl => "vpl",
             GiMethod::RsmGather => "rsm",
             GiMethod::Drm => "drm",
+            GiMethod::Radiosity => "radiosity",
         }
     }
 

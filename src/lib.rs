@@ -23,7 +23,8 @@
 //!
 //! Modules: [`composite`] (the GI frame every method shares: the per-view indirect-light target, the
 //! composite into the image, debug views), the methods [`radiance_hints`], [`vpl`] (with the
-//! screen-space bias compensation of [`ssbc`]), and the one-bounce gathers [`rsm_gather`] and [`drm`],
+//! screen-space bias compensation of [`ssbc`]), the one-bounce gathers [`rsm_gather`] and [`drm`], and
+//! [`radiosity`] (implicit-visibility hierarchical radiosity, which needs no RSM),
 //! their shared input [`rsm`] (reflective shadow maps), the settings helpers of [`settings`],
 //! [`camera`] and [`light`] (the user's components), [`ui`] (the egui panel, feature `egui`). The measuring instruments: [`scene`] (CPU snapshot of the world), [`reference`](mod@reference)
 //! (path-traced ground truth), [`metrics`] (errors), [`scenes`] (standard scenes), [`headless`].
@@ -37,6 +38,7 @@ pub mod headless;
 pub mod light;
 pub mod metrics;
 pub mod radiance_hints;
+pub mod radiosity;
 #[cfg(feature = "reference")]
 pub mod reference;
 pub mod rsm;
@@ -65,6 +67,7 @@ pub mod prelude {
     pub use crate::vpl::VplSettings;
     pub use crate::rsm_gather::{RsmGatherSettings, RsmSampleWeights};
     pub use crate::drm::{DrmSettings, DrmSolidAngle};
+    pub use crate::radiosity::{LinkTransfer, RadiositySettings};
     #[cfg(feature = "egui")]
     pub use crate::ui::{DiffuseGiInspector, DiffuseGiInspectorPlugin};
 }
@@ -113,6 +116,7 @@ impl Plugin for DiffuseGiPlugin {
             ssbc::SsbcPlugin,
             rsm_gather::RsmGatherPlugin,
             drm::DrmPlugin,
+            radiosity::RadiosityPlugin,
         ));
     }
 

@@ -148,6 +148,7 @@ pub fn gi_camera(method: GiMethod) -> impl Bundle {
         VplSettings::MEDIUM,
         RsmGatherSettings::MEDIUM,
         DrmSettings::MEDIUM,
+        RadiositySettings::MEDIUM,
         Hdr,
         Tonemapping::TonyMcMapface,
     )
@@ -200,14 +201,14 @@ fn keys(
     keys: Res<ButtonInput<KeyCode>>,
     wants: Option<Res<bevy_egui::input::EguiWantsInput>>,
     mut example: ResMut<Example>,
-    mut cameras: Query<(&mut DiffuseGi, &mut VplSettings, &mut RsmGatherSettings, &mut DrmSettings)>,
+    mut cameras: Query<(&mut DiffuseGi, &mut VplSettings, &mut RsmGatherSettings, &mut DrmSettings, &mut RadiositySettings)>,
     mut volumes: Query<&mut RadianceHintsVolume>,
 ) {
     if wants.is_some_and(|w| w.wants_any_keyboard_input()) {
         return;
     }
     let digits = [KeyCode::Digit1, KeyCode::Digit2, KeyCode::Digit3, KeyCode::Digit4, KeyCode::Digit5];
-    for (mut gi, mut vpl, mut rsm, mut drm) in &mut cameras {
+    for (mut gi, mut vpl, mut rsm, mut drm, mut radiosity) in &mut cameras {
         if keys.just_pressed(KeyCode::KeyG) {
             gi.enabled = !gi.enabled;
         }
@@ -233,6 +234,7 @@ fn keys(
             *vpl = [VplSettings::LOW, VplSettings::MEDIUM, VplSettings::HIGH][p].clone();
             *rsm = [RsmGatherSettings::LOW, RsmGatherSettings::MEDIUM, RsmGatherSettings::HIGH][p].clone();
             *drm = [DrmSettings::LOW, DrmSettings::MEDIUM, DrmSettings::HIGH][p].clone();
+            *radiosity = [RadiositySettings::LOW, RadiositySettings::MEDIUM, RadiositySettings::HIGH][p].clone();
         }
     }
     if keys.just_pressed(KeyCode::KeyP) {

@@ -345,7 +345,7 @@ fn attach_camera(
                 ..default()
             });
             // Every method's settings: a camera uses only its method's (and `--switch-method` finds them).
-            commands.entity(entity).insert((o.vpl.clone(), o.rsm_gather.clone(), o.drm.clone()));
+            commands.entity(entity).insert((o.vpl.clone(), o.rsm_gather.clone(), o.drm.clone(), o.radiosity.clone()));
             if let Some((levels, extent)) = o.rh_cascade {
                 let rh = RadianceHintsVolume { sizing: crate::radiance_hints::GridSizing::Fixed, ..o.rh.clone() };
                 let defaults = crate::radiance_hints::RadianceHintsCascade::default();
@@ -553,7 +553,7 @@ fn switch_method(
     for (entity, mut gi) in &mut cameras {
         gi.method = method;
         let o = &headless.options;
-        commands.entity(entity).insert((o.vpl.clone(), o.rsm_gather.clone(), o.drm.clone()));
+        commands.entity(entity).insert((o.vpl.clone(), o.rsm_gather.clone(), o.drm.clone(), o.radiosity.clone()));
     }
 }
 

@@ -8,6 +8,7 @@ use bevy::prelude::default;
 use crate::camera::{GiMethod, GiOutput};
 use crate::vpl::VplSettings;
 use crate::drm::{DrmSettings, DrmSolidAngle};
+use crate::radiosity::{LinkTransfer, RadiositySettings};
 use crate::rsm_gather::RsmGatherSettings;
 use crate::radiance_hints::{DepthOcclusion, GridSizing, IrradianceReconstruction, RadianceHintsVolume};
 use crate::scenes::StandardScene;
@@ -27,7 +28,7 @@ pub enum HeadlessMethod {
 
 impl HeadlessMethod {
     /// Every accepted `--method` value.
-    pub const NAMES: &'static [&'static str] = &["none", "reference", "rh", "vpl", "rsm", "drm"];
+    pub const NAMES: &'static [&'static str] = &["none", "reference", "rh", "vpl", "rsm", "drm", "radiosity"];
 
     pub fn parse(text: &str) -> Result<Self, String> {
         match text {
@@ -105,6 +106,9 @@ pub struct HeadlessOptions {
     /// Direct Radiance Mapping settings (`--preset` and the `--drm-*` overrides), passed on unclamped.
     #[serde(skip)]
     pub drm: DrmSettings,
+    /// Radiosity settings (`--preset` and the `--radiosity-*` overrides), passed on unclamped.
+    #[serde(skip)]
+    pub radiosity: RadiositySettings,
     /// Fit the hint counts to the scene's proportions (cubic cells), unless `--rh-resolution` was given.
     pub rh_fit_cells: bool,
     /// Radiance Hints: a camera-centred cascade of this many levels (`--rh-cascade N`, innermost box
@@ -157,6 +161,7 @@ impl Default for HeadlessOptions {
             vpl: VplSettings::default(),
             rsm_gather: RsmGatherSettings::default(),
             drm: DrmSettings::default(),
+            radiosity: RadiositySettings::default(),
             rh_fit_cells: true,
             rh_cascade: None,
             half_resolution: crate::camera::DiffuseGi::default().half_resolution,
@@ -192,7 +197,7 @@ pub struct HeadlessArgs {
     pub out: Option<PathBuf>,
     /// none = Bevy's direct light; reference = the CPU path tracer; rh = Radiance Hints over a volume
     /// fitted to the scene; vpl = VPLs with imperfect shadow maps and SSBC; rsm = the RSM gather;
-    /// drm = Direct Radiance Mapping
+    /// drm = Direct Radiance Mapping; radiosity = implicit-visibility hierarchical radiosity
     #[arg(long, value_name = "METHOD", default_value = "none", value_parser = HeadlessMethod::parse)]
     pub method: HeadlessMethod,
     /// Write only the indirect light the method adds
@@ -216,7 +221,8 @@ pub struct HeadlessArgs {
     /// Path tracer: one ray through each pixel centre, no pixel filter (for the direct check)
     #[arg(long)]
     pub pixel_centers: bool,
-    /// The method's preset: RadianceHintsVolume, VplSettings, RsmGatherSettings or DrmSettings
+    /// The method's preset: RadianceHintsVolume, VplSettings, RsmGatherSettings, DrmSettings or
+    /// RadiositySettings
     #[arg(long, value_name = "PRESET", default_value = "medium", value_parser = ["low", "medium", "high"])]
     pub preset: String,
     /// Compute the bounced light at half resolution (the default)
@@ -251,7 +257,8 @@ pub struct HeadlessArgs {
     /// dynamic scene: add about N static triangles (spheres along the back wall), 0..=5000000
     #[arg(long, value_name = "N", default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=5_000_000))]
     pub extra_triangles: u32,
-    /// After FRAMES of the --frames, switch the camera to the given GI method (rh, vpl, rsm or drm)
+    /// After FRAMES of the --frames, switch the camera to the given GI method (rh, vpl, rsm, drm or
+    /// radiosity)
     #[arg(long, value_name = "FRAMES:METHOD", value_parser = parse_switch)]
     pub switch_method: Option<(u32, GiMethod)>,
     // The methods' overrides last: each group's help heading then covers only its own flags.
@@ -261,6 +268,53 @@ pub struct HeadlessArgs {
     pub vpl: VplArgs,
     #[command(flatten)]
     pub one_bounce: OneBounceArgs,
+    #[command(flatten)]
+    pub radiosity: RadiosityArgs,
+}
+
+/// Radiosity overrides of [`HeadlessArgs`] (each sets one `RadiositySettings` field after the preset).
+#[derive(clap::Args, Clone, Debug, Default)]
+#[command(next_help_heading = "Radiosity (--method radiosity; each overrides one RadiositySettings field)")]
+pub struct RadiosityArgs {
+    /// Bins along each cube-face side (6N² bins per element)
+    #[arg(long, value_name = "N")]
+    pub radiosity_bins: Option<u32>,
+    /// Light bounces, 1 = light reflected once
+    #[arg(long, value_name = "N")]
+    pub radiosity_bounces: Option<u32>,
+    /// Stop bouncing below this fraction of added light
+    #[arg(long, value_name = "F")]
+    pub radiosity_stop: Option<f32>,
+    /// Subdivide a node above this many bin solid angles
+    #[arg(long, value_name = "T")]
+    pub radiosity_subdivision: Option<f32>,
+    /// Longest element-mesh edge, fraction of the scene's diagonal (0 = the meshes' vertices)
+    #[arg(long, value_name = "F")]
+    pub radiosity_element_size: Option<f32>,
+    /// Eq. 5 transfer: bin (the bin's solid angle) or area (the element's, as printed)
+    #[arg(long, value_parser = ["bin", "area"])]
+    pub radiosity_transfer: Option<String>,
+}
+
+impl RadiosityArgs {
+    fn apply(self, s: &mut RadiositySettings) {
+        let RadiosityArgs {
+            radiosity_bins,
+            radiosity_bounces,
+            radiosity_stop,
+            radiosity_subdivision,
+            radiosity_element_size,
+            radiosity_transfer,
+        } = self;
+        s.bins = radiosity_bins.unwrap_or(s.bins);
+        s.bounces = radiosity_bounces.unwrap_or(s.bounces);
+        s.stop_threshold = radiosity_stop.unwrap_or(s.stop_threshold);
+        s.subdivision_threshold = radiosity_subdivision.unwrap_or(s.subdivision_threshold);
+        s.element_size = radiosity_element_size.unwrap_or(s.element_size);
+        if let Some(t) = radiosity_transfer {
+            s.transfer = if t == "area" { LinkTransfer::ElementArea } else { LinkTransfer::BinSolidAngle };
+        }
+    }
 }
 
 /// Radiance Hints overrides of [`HeadlessArgs`]: each sets one `RadianceHintsVolume` field after the
@@ -492,10 +546,18 @@ impl HeadlessArgs {
             switch_method: self.switch_method,
             ..HeadlessOptions::default()
         };
-        (o.rh, o.vpl, o.rsm_gather, o.drm) = match self.preset.as_str() {
-            "low" => (RadianceHintsVolume::LOW, VplSettings::LOW, RsmGatherSettings::LOW, DrmSettings::LOW),
-            "high" => (RadianceHintsVolume::HIGH, VplSettings::HIGH, RsmGatherSettings::HIGH, DrmSettings::HIGH),
-            _ => (RadianceHintsVolume::MEDIUM, VplSettings::MEDIUM, RsmGatherSettings::MEDIUM, DrmSettings::MEDIUM),
+        (o.rh, o.vpl, o.rsm_gather, o.drm, o.radiosity) = match self.preset.as_str() {
+            "low" => (RadianceHintsVolume::LOW, VplSettings::LOW, RsmGatherSettings::LOW, DrmSettings::LOW, RadiositySettings::LOW),
+            "high" => {
+                (RadianceHintsVolume::HIGH, VplSettings::HIGH, RsmGatherSettings::HIGH, DrmSettings::HIGH, RadiositySettings::HIGH)
+            }
+            _ => (
+                RadianceHintsVolume::MEDIUM,
+                VplSettings::MEDIUM,
+                RsmGatherSettings::MEDIUM,
+                DrmSettings::MEDIUM,
+                RadiositySettings::MEDIUM,
+            ),
         };
         if self.full_res {
             o.half_resolution = false;
@@ -520,12 +582,13 @@ impl HeadlessArgs {
         self.rh.apply(&mut o);
         self.vpl.apply(&mut o.vpl);
         self.one_bounce.apply(&mut o);
+        self.radiosity.apply(&mut o.radiosity);
 
         if o.switch_method.is_some_and(|(frames, _)| frames >= o.frames) {
             return Err("--switch-method: the switch must come before the last of --frames".into());
         }
         if o.switch_method.is_some() && o.method.gi().is_none() {
-            return Err("--switch-method: switches from a GI method (--method rh, vpl, rsm or drm)".into());
+            return Err("--switch-method: switches from a GI method (--method rh, vpl, rsm, drm or radiosity)".into());
         }
         if o.indirect_only && o.gi_output == GiOutput::IrradianceVolume {
             return Err("--indirect-only measures the per-pixel reconstruction; render the IrradianceVolume output \

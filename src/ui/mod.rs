@@ -16,6 +16,7 @@ use bevy_egui::{EguiContexts, EguiPlugin, EguiPrimaryContextPass, egui};
 
 use crate::camera::{DiffuseGi, GiDebugView, GiMethod, GiOutput};
 use crate::drm::{DrmSettings, DrmSolidAngle};
+use crate::radiosity::{LinkTransfer, RadiosityActivity, RadiositySettings};
 use crate::rsm_gather::{RsmGatherSettings, RsmSampleWeights};
 use crate::vpl::VplSettings;
 use crate::light::GiLight;
@@ -93,6 +94,7 @@ fn inspector_ui(
         Option<&mut VplSettings>,
         Option<&mut RsmGatherSettings>,
         Option<&mut DrmSettings>,
+        Option<&mut RadiositySettings>,
     )>,
     mut volumes: Query<(Entity, Option<&Name>, &mut RadianceHintsVolume, &GlobalTransform)>,
     mut lights: Query<(Entity, Option<&Name>, &mut GiLight)>,
@@ -101,6 +103,7 @@ fn inspector_ui(
     timing: Option<Res<crate::GiDeviceTiming>>,
     activity: Option<Res<RadianceHintsActivity>>,
     pipeline_errors: Option<Res<crate::GiPipelineErrors>>,
+    radiosity: Option<Res<RadiosityActivity>>,
 ) -> Result {
     let label = |entity: Entity, name: Option<&Name>| name.map_or_else(|| format!("{entity}"), |n| n.to_string());
     let ctx = contexts.ctx_mut()?;
@@ -114,7 +117,7 @@ fn inspector_ui(
         .vscroll(true)
         .show(ctx, |ui| {
         egui::CollapsingHeader::new("Cameras").default_open(true).show(ui, |ui| {
-            for (entity, name, mut gi, vpl, rsm_gather, drm) in &mut cameras {
+            for (entity, name, mut gi, vpl, rsm_gather, drm, radiosity_settings) in &mut cameras {
                 ui.label(label(entity, name));
                 let mut g = gi.clone();
                 ui.checkbox(&mut g.enabled, "bounced light (G)");
@@ -171,6 +174,21 @@ fn inspector_ui(
                             }
                         }
                     },
+                    GiMethod::Radiosity => {
+                        match radiosity_settings {
+                            Some(mut settings) => {
+                                ui.push_id(entity, |ui| radiosity_ui(ui, &mut settings));
+                            }
+                            None => {
+                                if ui.button("tune radiosity settings (adds RadiositySettings::MEDIUM)").clicked() {
+                                    commands.entity(entity).insert(RadiositySettings::MEDIUM);
+                                }
+                            }
+                        }
+                        if let Some(activity) = radiosity.as_deref() {
+                            radiosity_activity_ui(ui, activity);
+                        }
+                    }
                     GiMethod::RadianceHints => {}
                 }
                 ui.separator();
@@ -340,6 +358,46 @@ pub fn drm_ui(ui: &mut egui::Ui, settings: &mut Mut<DrmSettings>) {
     ui.checkbox(&mut v.mip_mapped, "mip-mapped photons (§5, no flashing)");
     ui.add(egui::Slider::new(&mut v.intensity, 0.0..=1000.0).logarithmic(true).text("intensity"));
     commit(v, settings);
+}
+
+/// The widgets of a camera's [`RadiositySettings`]; each range is the field's valid range. ASCII labels
+/// only (see `rsm_gather_ui`).
+pub fn radiosity_ui(ui: &mut egui::Ui, settings: &mut Mut<RadiositySettings>) {
+    let mut v = (**settings).clone();
+    ui.horizontal(|ui| {
+        ui.label("radiosity preset");
+        for (name, preset) in [("Low", RadiositySettings::LOW), ("Medium", RadiositySettings::MEDIUM), ("High", RadiositySettings::HIGH)] {
+            if ui.button(name).clicked() {
+                v = preset;
+            }
+        }
+    });
+    ui.add(egui::Slider::new(&mut v.bins, 2..=32).text("bins per cube side N (6 N x N per element)"));
+    ui.add(egui::Slider::new(&mut v.bounces, 1..=16).text("bounces"));
+    ui.add(egui::Slider::new(&mut v.stop_threshold, 0.0..=1.0).logarithmic(true).text("stop below this share"));
+    ui.add(egui::Slider::new(&mut v.subdivision_threshold, 0.05..=8.0).logarithmic(true).text("subdivide above x bin"));
+    ui.add(egui::Slider::new(&mut v.element_size, 0.0..=0.5).logarithmic(true).text("element size (of the scene)"));
+    let mut area = v.transfer == LinkTransfer::ElementArea;
+    ui.checkbox(&mut area, "Eq. 5 with the element's area (as printed)");
+    v.transfer = if area { LinkTransfer::ElementArea } else { LinkTransfer::BinSolidAngle };
+    ui.horizontal(|ui| {
+        ui.label("sky (cd/m2)");
+        for c in [&mut v.sky.x, &mut v.sky.y, &mut v.sky.z] {
+            ui.add(egui::DragValue::new(c).speed(0.05).range(0.0..=1e6));
+        }
+    });
+    ui.add(egui::Slider::new(&mut v.intensity, 0.0..=1000.0).logarithmic(true).text("intensity"));
+    commit(v, settings);
+}
+
+/// What the last radiosity solve did: its elements and the paper's Table 1 stages.
+fn radiosity_activity_ui(ui: &mut egui::Ui, a: &RadiosityActivity) {
+    let t = &a.times;
+    ui.label(format!("{} elements, {} nodes, {} links; last frame: {:?}", a.elements, a.nodes, t.links, a.last));
+    ui.label(format!(
+        "update {:.1} ms, links {:.1} ms, refine+push {:.1} ms, illumination {:.1} ms ({} bounces)",
+        t.update_elements_ms, t.create_links_ms, t.refine_push_ms, t.illumination_ms, t.bounces_run
+    ));
 }
 
 fn volume_ui(ui: &mut egui::Ui, label: &str, volume: &mut Mut<RadianceHintsVolume>, transform: &GlobalTransform) {

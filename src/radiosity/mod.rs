@@ -1,0 +1,570 @@
+//! Hierarchical radiosity with implicit visibility (Dong, Kautz, Theobalt, Seidel, "Interactive Global
+//! Illumination Using Implicit Visibility", Pacific Graphics 2007): multi-bounce diffuse light between
+//! surface elements at mesh vertices, whose visibility comes from the link structure itself instead of
+//! shadow maps or rays. It needs no reflective shadow map and no volume, so it also lights scenes whose
+//! only light is an emissive mesh.
+//!
+//! ```no_run
+//! # use bevy::prelude::*;
+//! # use bevy_diffuse_gi::prelude::*;
+//! # fn setup(mut commands: Commands) {
+//! commands.spawn((Camera3d::default(), DiffuseGi { method: GiMethod::Radiosity, ..default() }, RadiositySettings::MEDIUM));
+//! commands.spawn((SpotLight { shadow_maps_enabled: true, ..default() }, GiLight::default()));
+//! # }
+//! ```
+//!
+//! # Algorithm (the paper's Algorithm 1, on the CPU with rayon: [`solver`])
+//! The rendering equation (Eq. 1) is split over `N_bin` directional bins (Eq. 2); within a bin the
+//! integral over surfaces (Eq. 3) becomes a sum over surface elements (Eq. 4), and under the last
+//! assumption, that the closest element covers its bin, only the closest element counts (Eq. 5): the
+//! bins of a cube map around each element keep the *shortest* link in their direction, which is the
+//! implicit visibility.
+//! 1. **Surface elements** (§4.1): every mesh of the [scene snapshot](crate::scene) is welded (vertices
+//!    sharing a position and normal) and cut so that no triangle edge is longer than
+//!    [`element_size`](RadiositySettings::element_size); each vertex is an oriented disc of ⅓ of the area
+//!    of its triangles. Each connected smooth piece of a mesh is a *segment*, the coarsest level of the
+//!    hierarchy (the paper uses UV charts; the snapshot keeps no charts, and these are what a chart
+//!    layout would give for the usual meshes). A **quadtree** per segment splits its elements twice at
+//!    the median of the widest axis into up to four children; nodes carry the area-weighted position,
+//!    the mean normal and the total area, refitted bottom-up when elements move (§4.2.1).
+//! 2. **Links** (§4.2.2) in `6 × N × N` world-aligned cube-map bins per node ([`bins`](RadiositySettings::bins)):
+//!    all segments are linked pairwise (and each with itself), going down the hierarchy while a node's
+//!    solid angle `A / r²` exceeds [`subdivision_threshold`](RadiositySettings::subdivision_threshold) ×
+//!    the bin's solid angle, the larger node first, and each bin keeps its shortest link. Links are made
+//!    from both ends with the same subdivisions, so they sit in a bin at one end and the opposite bin at
+//!    the other.
+//! 3. **Refine and push down** (§4.2.3–4.2.4): each leaf ends with, per bin, the shortest of its own and
+//!    its ancestors' links.
+//! 4. **Gather and pull up** (§4.3), bounce after bounce: each leaf sums `L_y cos θ Ω_bin` over its bins
+//!    (Eq. 2 with Eq. 5; [`LinkTransfer`] also offers Eq. 5's element area as printed), from the nodes'
+//!    outgoing radiance `L = L_e + ρ/π E`, pulled up area-weighted; the light a bounce adds decides when
+//!    to stop ([`stop_threshold`](RadiositySettings::stop_threshold)). Empty bins see the constant
+//!    [`sky`](RadiositySettings::sky) (§4.4).
+//! 5. **Sources** (§4.4): emissive meshes are elements with `L_e > 0` (area lights); the GI lights
+//!    ([`GiLight`](crate::light::GiLight), every kind) give each element its direct irradiance through a
+//!    shadow ray against the snapshot's BVH (the one place rays are used: the paper's sources are
+//!    geometry). The direct light itself is Bevy's; the frame shows what arrives over links.
+//! 6. **Display**: each view draws the elements' triangles into the frame's indirect-light target with the
+//!    gathered irradiance at their corners, keeping only fragments on the surface the depth prepass saw
+//!    (`shaders/radiosity/display.wgsl`); the frame's filter, upsampling and composite do the rest.
+//!
+//! # Where this departs from the paper, and why
+//! * **Where an element samples light**: at the centroid of its dual cell, not at the vertex, so that an
+//!   element on a mesh border (where a floor meets a wall) does not look at the back of the wall.
+//! * **Rasterised links**: a sender spanning several bins is stored in each bin its points cover
+//!   (children's centres for clusters, a disc for leaves), and an ancestor's link is re-binned by its
+//!   direction from the leaf during the push-down; holes left between covered bins are filled from their
+//!   neighbours. With one bin per link (the paper), 15 % of a closed box's bins stayed empty.
+//! * **Senders seen from behind still occlude** (one-sided culling only at the receiver), so single-sided
+//!   walls stop light.
+//! * **Bin solid angle** instead of the element's area in Eq. 5 (the paper's own last assumption), with
+//!   the bins above a receiver's horizon normalised to π. Eq. 5 as printed loses all but the closest
+//!   element of each bin.
+//! * Analytic lights (point, spot, directional) are not geometry: their direct light reaches elements
+//!   through shadow rays.
+//!
+//! # Cost
+//! Nothing runs without an active camera using [`GiMethod::Radiosity`](crate::camera::GiMethod::Radiosity).
+//! All work is on the main thread's rayon pool, in `PostUpdate`, and only when its inputs change: the
+//! elements are rebuilt when meshes are added, removed or re-meshed (a skinned mesh's new pose), and
+//! moved by a transform when an instance moves (O(its elements), then a bottom-up refit); links are
+//! rebuilt whenever any geometry changes (every frame while something moves, as in the paper);
+//! lighting alone (a light or its intensity) redoes only the illumination. The GPU draws the element
+//! triangles once per view. [`RadiosityActivity`] reports the paper's Table 1 stages per solve.
+//!
+//! # Known issues
+//! * Elements are one-sided: the back of a single-sided surface (a plane seen from below) gets no light.
+//! * Bins that a surface's silhouette crosses count as covered: a small bright patch is about 10 % too
+//!   bright on the receivers around it (the two facing squares of the tests).
+//! * Links are rebuilt from scratch on any geometry change, O(N log N) in the elements of the whole scene.
+//! * `EnvironmentMapLight` is not read (Bevy applies it itself, without occlusion); a constant sky colour
+//!   is.
+
+pub mod solver;
+mod render;
+
+use std::sync::Arc;
+
+use bevy::camera::Exposure;
+use bevy::prelude::*;
+use bevy::render::RenderApp;
+use bevy::render::extract_resource::{ExtractResource, ExtractResourcePlugin};
+use bevy::render::render_resource::ShaderType;
+use rayon::prelude::*;
+
+pub use solver::{LinkTransfer, RadiositySolver, SolveParams, StageTimes};
+
+use crate::camera::{DiffuseGi, GiMethod};
+use crate::light::GiLight;
+use crate::scene::{SceneSnapshot, SceneSnapshotSystems};
+use crate::settings::{Clamped, GiSettings};
+use solver::{Elements, PatchTriangle, RadiosityPatch};
+
+/// The settings of implicit-visibility radiosity, on a camera with
+/// [`DiffuseGi`](crate::camera::DiffuseGi) `{ method: GiMethod::Radiosity, .. }`. A camera without it
+/// uses [`RadiositySettings::default`] (the medium preset). The solution is the scene's, not the view's:
+/// with several radiosity cameras, the first active one's settings apply. Invalid values are clamped to
+/// their range with one warning.
+#[derive(Component, Reflect, Clone, Debug, PartialEq)]
+#[reflect(Component, Default, Clone)]
+pub struct RadiositySettings {
+    /// Bins along each side of each face of an element's cube map (`6 N²` bins). Range 2–32; low 8,
+    /// medium 12 (the default, the paper's compromise), high 16. Cost: link memory and the gather are
+    /// linear in `N²` (8 bytes a bin per node), link creation grows with it.
+    pub bins: u32,
+    /// Light bounces: 1 is light reflected once (the GI lights' and emitters' light gathered once); each
+    /// more adds one more reflection. Range 1–16; default 4 (low 2, high 8). Cost: one gather over all
+    /// bins of all elements per bounce, and only when the lighting changes.
+    pub bounces: u32,
+    /// Stop bouncing when a bounce adds less than this fraction of the gathered light. Range 0–1;
+    /// default 0.01. Cost: none; it saves bounces.
+    pub stop_threshold: f32,
+    /// A node is subdivided when its solid angle exceeds this many bin solid angles (§4.2.2). Range
+    /// 0.05–8; default 1 (the paper's rule). Lower: finer links, fewer light leaks, more links. Cost:
+    /// link creation grows roughly with its inverse.
+    pub subdivision_threshold: f32,
+    /// Longest triangle edge of the element mesh as a fraction of the scene's bounding-box diagonal;
+    /// longer triangles are cut (0 keeps the meshes' own vertices, the paper's choice, which leaks light
+    /// on coarse meshes: its Fig. 10d). Range 0–0.5; default 1/32 (low 1/20, high 1/48). Cost: the
+    /// element count grows with the inverse square; everything else with the element count.
+    pub element_size: f32,
+    /// How a link's sender contributes. Default [`LinkTransfer::BinSolidAngle`].
+    pub transfer: LinkTransfer,
+    /// Radiance of a constant sky seen through empty bins, linear RGB in cd/m² (before exposure).
+    /// Default black (no sky). Each component 0–10⁶.
+    pub sky: Vec3,
+    /// Multiplies the indirect light. Range 0–1000; default 1.
+    pub intensity: f32,
+}
+
+impl RadiositySettings {
+    /// 6 × 8 × 8 bins, two bounces, elements of 1/20 of the scene.
+    pub const LOW: Self = Self {
+        bins: 8,
+        bounces: 2,
+        stop_threshold: 0.01,
+        subdivision_threshold: 1.0,
+        element_size: 1.0 / 20.0,
+        transfer: LinkTransfer::BinSolidAngle,
+        sky: Vec3::ZERO,
+        intensity: 1.0,
+    };
+    /// 6 × 12 × 12 bins, four bounces, elements of 1/32 of the scene (the default).
+    pub const MEDIUM: Self = Self { bins: 12, bounces: 4, element_size: 1.0 / 32.0, ..Self::LOW };
+    /// 6 × 16 × 16 bins, eight bounces, elements of 1/48 of the scene.
+    pub const HIGH: Self = Self { bins: 16, bounces: 8, element_size: 1.0 / 48.0, ..Self::LOW };
+
+    /// The solver's parameters.
+    pub fn params(&self) -> SolveParams {
+        SolveParams {
+            bins: self.bins,
+            bounces: self.bounces,
+            stop_threshold: self.stop_threshold,
+            subdivision_threshold: self.subdivision_threshold,
+            transfer: self.transfer,
+            environment: self.sky,
+        }
+    }
+}
+
+impl Default for RadiositySettings {
+    fn default() -> Self {
+        Self::MEDIUM
+    }
+}
+
+impl GiSettings for RadiositySettings {
+    const NAME: &'static str = "RadiositySettings";
+
+    fn sanitized(&self) -> (Self, Vec<(&'static str, String)>) {
+        let mut s = self.clone();
+        let mut c = Clamped::default();
+        c.uint(&mut s.bins, 2, 32, "bins");
+        c.uint(&mut s.bounces, 1, 16, "bounces");
+        c.float(&mut s.stop_threshold, 0.0, 1.0, 0.01, "stop_threshold");
+        c.float(&mut s.subdivision_threshold, 0.05, 8.0, 1.0, "subdivision_threshold");
+        c.float(&mut s.element_size, 0.0, 0.5, 1.0 / 32.0, "element_size");
+        let (mut r, mut g, mut b) = (s.sky.x, s.sky.y, s.sky.z);
+        for v in [&mut r, &mut g, &mut b] {
+            c.float(v, 0.0, 1e6, 0.0, "sky");
+        }
+        s.sky = Vec3::new(r, g, b);
+        c.float(&mut s.intensity, 0.0, 1000.0, 1.0, "intensity");
+        (s, c.fields)
+    }
+}
+
+/// One vertex of the element mesh the frame draws (`RadiosityVertex` in
+/// `shaders/radiosity/display.wgsl`).
+#[derive(ShaderType, Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
+pub struct RadiosityVertex {
+    /// World position (xyz), w = 1.
+    pub position: Vec4,
+    /// Gathered irradiance over π, `E/π` (rgb, before exposure, times the intensity); w unused.
+    pub irradiance: Vec4,
+}
+
+/// The solution the frame draws: the element mesh with its light. Extracted to the render world.
+#[derive(Resource, Clone, Debug, Default, ExtractResource)]
+pub struct RadiosityOutput {
+    /// Bumped whenever the vertices or triangles change.
+    pub generation: u64,
+    pub vertices: Arc<Vec<RadiosityVertex>>,
+    /// Three vertex indices per triangle.
+    pub indices: Arc<Vec<u32>>,
+}
+
+/// What the last radiosity solve did, for the panel, the tools and the tests.
+#[derive(Resource, Clone, Debug, Default, PartialEq)]
+pub struct RadiosityActivity {
+    /// Surface elements (vertices after subdivision) and hierarchy nodes.
+    pub elements: usize,
+    pub nodes: usize,
+    /// The stages of the last solve, ms (the paper's Table 1 rows); zero for a stage that did not run.
+    pub times: StageTimes,
+    /// Solves so far (frames in which anything was recomputed).
+    pub solves: u64,
+    /// What the last solve redid.
+    pub last: RadiosityWork,
+}
+
+/// How much of the solution a frame recomputed.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum RadiosityWork {
+    /// Nothing changed.
+    #[default]
+    Reused,
+    /// Only the lighting (lights, settings of the illumination).
+    Illumination,
+    /// Moved instances: elements moved and refitted, links and lighting rebuilt.
+    Refit,
+    /// New elements (meshes added, removed or re-meshed; element settings), links and lighting.
+    Rebuild,
+}
+
+/// The main-world state of the solver.
+#[derive(Resource, Default)]
+pub struct RadiosityState {
+    pub solver: RadiositySolver,
+    /// Per snapshot instance: key, version and `world_from_local` the elements were made with, and their
+    /// element range.
+    instances: Vec<(u64, u64, Affine3A, std::ops::Range<usize>)>,
+    /// What the elements were built from: layout generation, element size and exposure (bits; the
+    /// emission of `emissive.alpha < 1` materials depends on it).
+    elements_key: Option<(u64, u32, u32)>,
+    /// What the links were built from: geometry generation, bins and subdivision threshold (bits).
+    links_key: Option<(u64, u32, u32)>,
+    /// What the lighting was computed from.
+    lighting_key: Option<LightingKey>,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+struct LightingKey {
+    geometry: u64,
+    lights: u64,
+    gi_lights: Vec<Entity>,
+    exposure: u32,
+    settings: RadiositySettings,
+}
+
+/// Implicit-visibility radiosity: settings validation, the CPU solve, the per-view display. Added by
+/// [`crate::DiffuseGiPlugin`].
+pub struct RadiosityPlugin;
+
+impl Plugin for RadiosityPlugin {
+    fn build(&self, app: &mut App) {
+        let shader = crate::add_shader(app, "radiosity/display.wgsl", include_str!("../../shaders/radiosity/display.wgsl"));
+        app.register_type::<RadiositySettings>()
+            .init_resource::<RadiosityState>()
+            .init_resource::<RadiosityOutput>()
+            .init_resource::<RadiosityActivity>()
+            .add_plugins(ExtractResourcePlugin::<RadiosityOutput>::default())
+            .add_systems(
+                PostUpdate,
+                (
+                    crate::settings::validate_settings::<RadiositySettings>,
+                    update_radiosity.after(SceneSnapshotSystems::Update),
+                ),
+            );
+        if let Some(render_app) = app.get_sub_app_mut(RenderApp) {
+            render_app.insert_resource(render::RadiosityShader(shader));
+        }
+    }
+
+    fn finish(&self, app: &mut App) {
+        use bevy::render::render_resource::DownlevelFlags;
+        let supported = crate::gpu_supports(app, "Radiosity", |limits, flags| {
+            missing_capabilities(limits, flags.contains(DownlevelFlags::VERTEX_STORAGE))
+        });
+        let Some(render_app) = app.get_sub_app_mut(RenderApp).filter(|_| supported) else {
+            return;
+        };
+        render::add_render_systems(render_app);
+    }
+}
+
+/// The GPU capabilities the display needs, as `(name, required, found)` for every shortfall: storage
+/// buffers read by the vertex shader (the element mesh is pulled from two of them).
+pub fn missing_capabilities(limits: &bevy::render::settings::WgpuLimits, vertex_storage: bool) -> Vec<crate::Shortfall> {
+    let mut missing = Vec::new();
+    if !vertex_storage {
+        missing.push(("storage buffers in vertex shaders (DownlevelFlags::VERTEX_STORAGE)", 1, 0));
+    }
+    if limits.max_storage_buffers_per_shader_stage < 2 {
+        missing.push(("max_storage_buffers_per_shader_stage", 2, limits.max_storage_buffers_per_shader_stage as u64));
+    }
+    missing
+}
+
+use bevy::math::Affine3A;
+
+/// The element patches of every instance of the snapshot, in instance order, with each instance's key,
+/// version and transform.
+fn instance_patches(snapshot: &SceneSnapshot, exposure: f32) -> Vec<(u64, u64, Affine3A, RadiosityPatch)> {
+    snapshot
+        .instances()
+        .par_iter()
+        .map(|instance| {
+            let material = snapshot.materials.get(instance.material as usize);
+            let emission = material.map_or(Vec3::ZERO, |m| m.emission(exposure));
+            let emission = if emission.is_finite() { emission.max(Vec3::ZERO) } else { Vec3::ZERO };
+            let mirrored = instance.world_from_local().matrix3.determinant() < 0.0;
+            let triangles = (0..instance.triangle_count())
+                .map(|i| {
+                    let positions = instance.triangle(i);
+                    let attributes = instance.attributes(i);
+                    let corners = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0)];
+                    let mut albedo = corners.map(|(u, v)| {
+                        material.map_or(Vec3::splat(0.5), |m| m.diffuse_at(&snapshot.textures, &attributes, u, v))
+                    });
+                    let mut normals = attributes.normals;
+                    // `triangle` swaps vertices 1 and 2 of a mirrored instance; its attributes keep the
+                    // local order.
+                    if mirrored {
+                        albedo.swap(1, 2);
+                        normals.swap(1, 2);
+                    }
+                    PatchTriangle { positions, normals, albedo, emission }
+                })
+                .collect();
+            (instance.key, instance.version, instance.world_from_local(), RadiosityPatch { triangles })
+        })
+        .collect()
+}
+
+/// Direct irradiance (lux) from the GI lights at each element, with a shadow ray each.
+fn direct_irradiance(snapshot: &SceneSnapshot, elements: &Elements, gi_lights: &[Entity]) -> Vec<Vec3> {
+    let epsilon = snapshot.bounds().map_or(1e-4, |(lo, hi)| ((hi - lo).length() * 1e-4).max(1e-6));
+    let lights: Vec<_> = snapshot.lights.iter().filter(|l| gi_lights.contains(&l.entity)).map(|l| l.light).collect();
+    (0..elements.len())
+        .into_par_iter()
+        .map(|e| {
+            let (p, n) = (elements.positions[e], elements.normals[e]);
+            let origin = p + n * epsilon;
+            let mut sum = Vec3::ZERO;
+            for light in &lights {
+                let Some((l, distance, irradiance)) = light.incident(origin) else {
+                    continue;
+                };
+                let cos = n.dot(l);
+                if cos > 0.0 && !snapshot.occluded(origin, l, epsilon, distance - epsilon) {
+                    sum += irradiance * cos;
+                }
+            }
+            if sum.is_finite() { sum } else { Vec3::ZERO }
+        })
+        .collect()
+}
+
+/// Keeps the radiosity solution current for the first active radiosity camera: elements, links and
+/// lighting, each only when what it depends on changed.
+#[expect(clippy::too_many_arguments, reason = "the solve reads the cameras, the lights and the snapshot")]
+fn update_radiosity(
+    mut commands: Commands,
+    cameras: Query<(&Camera, &DiffuseGi, Option<&RadiositySettings>, Option<&Exposure>)>,
+    gi_lights: Query<Entity, With<GiLight>>,
+    snapshot: Option<Res<SceneSnapshot>>,
+    mut state: ResMut<RadiosityState>,
+    mut output: ResMut<RadiosityOutput>,
+    mut activity: ResMut<RadiosityActivity>,
+) {
+    let camera = cameras
+        .iter()
+        .find(|(camera, gi, _, _)| camera.is_active && gi.enabled && gi.method == GiMethod::Radiosity);
+    let Some((_, _, settings, exposure)) = camera else {
+        if state.elements_key.is_some() {
+            *state = RadiosityState::default();
+            let generation = output.generation + 1;
+            *output = RadiosityOutput { generation, ..default() };
+        }
+        return;
+    };
+    let Some(snapshot) = snapshot else {
+        commands.init_resource::<SceneSnapshot>();
+        return;
+    };
+    let settings = settings.cloned().unwrap_or_default().sanitized().0;
+    let exposure = exposure.copied().unwrap_or_default().exposure();
+    let params = settings.params();
+    let state = &mut *state;
+    let diagonal = snapshot.bounds().map_or(1.0, |(lo, hi)| (hi - lo).length()).max(1e-6);
+    let mut work = RadiosityWork::Reused;
+    let mut times = StageTimes::default();
+
+    // 1. Elements: rebuilt on a new layout or element size, moved with instances otherwise.
+    let elements_key = Some((snapshot.layout_generation, settings.element_size.to_bits(), exposure.to_bits()));
+    let moved = state.links_key.is_none_or(|k| k.0 != snapshot.geometry_generation);
+    if state.elements_key != elements_key || (moved && !move_instances(state, &snapshot)) {
+        let start = std::time::Instant::now();
+        let mut elements = Elements::default();
+        state.instances.clear();
+        for (key, version, transform, patch) in instance_patches(&snapshot, exposure) {
+            let first = elements.len();
+            elements.add_patch(&patch, settings.element_size * diagonal);
+            state.instances.push((key, version, transform, first..elements.len()));
+        }
+        state.solver = RadiositySolver::new(elements);
+        state.elements_key = elements_key;
+        state.links_key = None;
+        times.update_elements_ms = start.elapsed().as_secs_f32() * 1e3;
+        work = RadiosityWork::Rebuild;
+    } else if moved {
+        let start = std::time::Instant::now();
+        state.solver.hierarchy.refit(&state.solver.elements);
+        times.update_elements_ms = start.elapsed().as_secs_f32() * 1e3;
+        work = RadiosityWork::Refit;
+    }
+
+    // 2. Links, whenever any geometry changed.
+    let links_key = Some((snapshot.geometry_generation, settings.bins, settings.subdivision_threshold.to_bits()));
+    if state.links_key != links_key {
+        state.solver.create_links(&params);
+        state.solver.refine_and_push();
+        times.create_links_ms = state.solver.times.create_links_ms;
+        times.refine_push_ms = state.solver.times.refine_push_ms;
+        times.links = state.solver.times.links;
+        state.links_key = links_key;
+        state.lighting_key = None;
+        if work == RadiosityWork::Reused {
+            work = RadiosityWork::Refit;
+        }
+    }
+
+    // 3. Lighting.
+    let mut lights: Vec<Entity> = gi_lights.iter().collect();
+    lights.sort();
+    let lighting_key = Some(LightingKey {
+        geometry: snapshot.geometry_generation,
+        lights: snapshot.light_generation,
+        gi_lights: lights,
+        exposure: exposure.to_bits(),
+        settings: settings.clone(),
+    });
+    if state.lighting_key == lighting_key {
+        activity.last = RadiosityWork::Reused;
+        return;
+    }
+    let start = std::time::Instant::now();
+    let direct = direct_irradiance(&snapshot, &state.solver.elements, &lighting_key.as_ref().unwrap().gi_lights);
+    state.solver.illuminate(&direct, &params);
+    times.illumination_ms = start.elapsed().as_secs_f32() * 1e3;
+    times.bounces_run = state.solver.times.bounces_run;
+    state.lighting_key = lighting_key;
+    if work == RadiosityWork::Reused {
+        work = RadiosityWork::Illumination;
+    }
+
+    let elements = &state.solver.elements;
+    let scale = settings.intensity / std::f32::consts::PI;
+    let vertices = (0..elements.len())
+        .map(|e| RadiosityVertex {
+            position: elements.vertices[e].extend(1.0),
+            irradiance: (state.solver.gathered[e] * scale).extend(0.0),
+        })
+        .collect();
+    let indices = elements.triangles.iter().flatten().copied().collect();
+    let generation = output.generation + 1;
+    *output = RadiosityOutput { generation, vertices: Arc::new(vertices), indices: Arc::new(indices) };
+    *activity = RadiosityActivity {
+        elements: elements.len(),
+        nodes: state.solver.hierarchy.nodes.len(),
+        times,
+        solves: activity.solves + 1,
+        last: work,
+    };
+}
+
+/// Moves the elements of instances whose transform changed (same instances, same meshes) by the
+/// change of their transform. Returns `false` when the snapshot's instances are not those the elements
+/// were made from (then everything is rebuilt).
+fn move_instances(state: &mut RadiosityState, snapshot: &SceneSnapshot) -> bool {
+    let instances = snapshot.instances();
+    if instances.len() != state.instances.len() {
+        return false;
+    }
+    let elements = &mut state.solver.elements;
+    for (instance, (key, version, transform, range)) in instances.iter().zip(state.instances.iter_mut()) {
+        if instance.key != *key {
+            return false;
+        }
+        if instance.version == *version {
+            continue;
+        }
+        let now = instance.world_from_local();
+        let change = now * transform.inverse();
+        // A new version in place without a move is a new material or texture: rebuild.
+        if !change.is_finite() || now == *transform {
+            return false;
+        }
+        let normal_matrix = Mat3::from(change.matrix3).inverse().transpose();
+        for e in range.clone() {
+            elements.positions[e] = change.transform_point3(elements.positions[e]);
+            elements.vertices[e] = change.transform_point3(elements.vertices[e]);
+            elements.normals[e] = (normal_matrix * elements.normals[e]).normalize_or(elements.normals[e]);
+        }
+        (*version, *transform) = (instance.version, now);
+    }
+    true
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn presets_are_valid_and_grow_in_cost() {
+        let presets = [RadiositySettings::LOW, RadiositySettings::MEDIUM, RadiositySettings::HIGH];
+        for preset in &presets {
+            assert!(preset.sanitized().1.is_empty(), "{preset:?}");
+        }
+        assert!(presets.windows(2).all(|w| w[0].bins < w[1].bins && w[0].element_size > w[1].element_size));
+        assert_eq!(RadiositySettings::default(), RadiositySettings::MEDIUM);
+        assert_eq!(RadiositySettings::MEDIUM.bins, 12);
+    }
+
+    #[test]
+    fn invalid_settings_are_clamped_and_named() {
+        let s = RadiositySettings {
+            bins: 0,
+            bounces: 100,
+            stop_threshold: f32::NAN,
+            element_size: -1.0,
+            sky: Vec3::new(f32::INFINITY, 1.0, -2.0),
+            ..default()
+        };
+        let (clean, bad) = s.sanitized();
+        let names: Vec<_> = bad.iter().map(|b| b.0).collect();
+        assert_eq!(names, ["bins", "bounces", "stop_threshold", "element_size", "sky", "sky"]);
+        assert_eq!((clean.bins, clean.bounces, clean.stop_threshold, clean.element_size), (2, 16, 0.01, 0.0));
+        assert_eq!(clean.sky, Vec3::new(0.0, 1.0, 0.0));
+    }
+
+    #[test]
+    fn a_device_with_webgpu_default_limits_runs_radiosity_and_one_without_vertex_storage_does_not() {
+        use bevy::render::settings::WgpuLimits;
+        assert!(missing_capabilities(&WgpuLimits::default(), true).is_empty());
+        let names: Vec<_> = missing_capabilities(&WgpuLimits::downlevel_webgl2_defaults(), false).iter().map(|m| m.0).collect();
+        assert!(names.iter().any(|n| n.contains("VERTEX_STORAGE")), "{names:?}");
+    }
+}
