@@ -4,7 +4,7 @@
 //!
 //! `cargo run --release --example showcase`
 //!
-//! Keys: the common ones (G bounced light, M or 1–4 the method, P preset, V debug view, H half resolution,
+//! Keys: the common ones (G bounced light, M or 1–5 the method, P preset, V debug view, H half resolution,
 //! L the lights' motion, C orbit ↔ fly camera, F1 the panel), and N next slide, Space auto-advance.
 //!
 //! Without a display (no `DISPLAY` or `WAYLAND_DISPLAY`, as on a CI machine) it renders one frame of
@@ -35,14 +35,14 @@ const SCENES: [StandardScene; 6] = [
 const SLIDE_SECONDS: f32 = 12.0;
 
 /// What CI shows, one screenshot each: every scene once and every method at least once (the emissive
-/// panel with Radiance Hints, the one method that bounces light from emissive surfaces).
+/// panel with radiosity, which needs no light's shadow map).
 const CI_SLIDES: [(usize, GiMethod); 6] = [
     (0, GiMethod::RadianceHints),
     (1, GiMethod::Vpl),
     (2, GiMethod::RsmGather),
     (3, GiMethod::Drm),
     (4, GiMethod::Vpl),
-    (5, GiMethod::RadianceHints),
+    (5, GiMethod::Radiosity),
 ];
 
 fn main() -> AppExit {

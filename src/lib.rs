@@ -162,11 +162,13 @@ pub struct MainThreadCost {
     pub voxels_ms: f32,
     /// Regenerating the VPLs (random walks over the snapshot).
     pub vpl_ms: f32,
+    /// The radiosity solve (elements, links, illumination; only what changed).
+    pub radiosity_ms: f32,
 }
 
 impl MainThreadCost {
     pub fn total_ms(&self) -> f32 {
-        self.snapshot_ms + self.voxels_ms + self.vpl_ms
+        self.snapshot_ms + self.voxels_ms + self.vpl_ms + self.radiosity_ms
     }
 }
 

@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 /// Every method, as the examples label their screenshots.
-const METHODS: &[&str] = &["rh", "vpl", "rsm", "drm"];
+const METHODS: &[&str] = &["rh", "vpl", "rsm", "drm", "radiosity"];
 
 /// The windowed examples and the screenshots each takes after the no-GI one; `true`: each shows the scene
 /// of the no-GI screenshot (so it must be brighter than it).
@@ -26,10 +26,11 @@ const EXAMPLES: &[(&str, &[&str], bool)] = &[
     ("vpl_ssbc", &["vpl"], true),
     ("rsm_gather", &["rsm"], true),
     ("direct_radiance_mapping", &["drm"], true),
+    ("implicit_visibility", &["radiosity"], true),
     // The slides: a scene each; only the first shows the no-GI screenshot's scene (cornell).
     (
         "showcase",
-        &["cornell_rh", "cellar_vpl", "sponza_like_rsm", "open_field_drm", "dynamic_vpl", "emissive_panel_rh"],
+        &["cornell_rh", "cellar_vpl", "sponza_like_rsm", "open_field_drm", "dynamic_vpl", "emissive_panel_radiosity"],
         false,
     ),
 ];

@@ -3,7 +3,7 @@
 //! and the CI harness ([`crate::common::CiCapturePlugin`]). Each example is a few lines on top
 //! ([`ExampleSpec`] and, where it needs more, its own systems).
 //!
-//! Keys every example has: G bounced light on/off, M or 1–4 the method, P the preset of every method,
+//! Keys every example has: G bounced light on/off, M or 1–5 the method, P the preset of every method,
 //! V the debug view, H half resolution, L the lights' motion, C orbit ↔ fly camera, F1 the panel.
 //! Orbit: left drag turns, right or middle drag pans, the wheel zooms. Fly: W A S D move, Q E down/up,
 //! Shift faster, right drag looks.
@@ -398,7 +398,7 @@ fn keys_window(
             ));
         }
         ui.label(format!(
-            "G bounced light  M/1-4 method  P preset  V view  H half res  L lights ({})",
+            "G bounced light  M/1-5 method  P preset  V view  H half res  L lights ({})",
             if example.moving { "moving" } else { "still" }
         ));
         ui.label("C orbit/fly  F1 panel  orbit: drag turns, right drag pans, wheel zooms");

@@ -405,6 +405,7 @@ fn drive(
     adapter: Option<Res<RenderAdapterInfo>>,
     dynamic: Option<Res<crate::scenes::DynamicScene>>,
     snapshot_timings: Res<crate::scene::SnapshotTimings>,
+    radiosity: Res<crate::radiosity::RadiosityActivity>,
 ) {
     let finish = |headless: &mut Headless, exit: &mut MessageWriter<AppExit>, error: Option<String>| {
         let failed = error.is_some();
@@ -519,6 +520,17 @@ fn drive(
                 headless.frame_starts.windows(2).map(|w| (w[1] - w[0]).as_secs_f64() * 1e3).collect();
             map.insert("frame_ms".into(), json!(intervals));
             map.insert("main_thread_ms".into(), json!(headless.main_thread_ms));
+            if headless.options.method == HeadlessMethod::Gi(crate::camera::GiMethod::Radiosity) {
+                let t = &radiosity.times;
+                map.insert(
+                    "radiosity".into(),
+                    json!({ "elements": radiosity.elements, "nodes": radiosity.nodes, "links": t.links,
+                            "last_work": format!("{:?}", radiosity.last),
+                            "solves": radiosity.solves, "bounces_run": t.bounces_run,
+                            "update_elements_ms": t.update_elements_ms, "create_links_ms": t.create_links_ms,
+                            "refine_push_ms": t.refine_push_ms, "illumination_ms": t.illumination_ms }),
+                );
+            }
             let mut outcome = headless.outcome.lock().expect("outcome lock");
             if let Some(mut previous) = previous.filter(|p| p.width == image.width && p.height == image.height) {
                 if headless.options.indirect_only && headless.options.method == HeadlessMethod::None {

@@ -167,6 +167,20 @@ impl Elements {
         self.positions.is_empty()
     }
 
+    /// Appends another set of elements (its segments and triangles renumbered after these).
+    pub fn append(&mut self, other: &Elements) {
+        let base = self.len() as u32;
+        let segment_base = self.segments.iter().max().map_or(0, |&s| s + 1);
+        self.positions.extend_from_slice(&other.positions);
+        self.vertices.extend_from_slice(&other.vertices);
+        self.normals.extend_from_slice(&other.normals);
+        self.areas.extend_from_slice(&other.areas);
+        self.albedo.extend_from_slice(&other.albedo);
+        self.emission.extend_from_slice(&other.emission);
+        self.segments.extend(other.segments.iter().map(|s| s + segment_base));
+        self.triangles.extend(other.triangles.iter().map(|t| t.map(|v| v + base)));
+    }
+
     /// Appends a patch's triangles, each cut into `m²` triangles with `m = ⌈longest edge / max_edge⌉`
     /// (at most 64; `max_edge ≤ 0` keeps the mesh's own vertices), welding vertices that share a position
     /// and a normal. Each connected set of welded triangles becomes a segment. Degenerate triangles are
@@ -435,8 +449,9 @@ fn split_median(mut members: Vec<u32>, positions: &[Vec3]) -> Vec<Vec<u32>> {
 /// How a link's sender contributes to the receiver (Eq. 5).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, bevy::reflect::Reflect)]
 pub enum LinkTransfer {
-    /// Eq. 5 as printed: `L_y (n_x·ω) (n_y·−ω) A_y / r²`, the sender's own solid angle. Loses the light of
-    /// every element in a bin but the closest, and grows without bound as two elements meet.
+    /// Eq. 5 as printed: `L_y (n_x·ω) (n_y·−ω) A_y / r²`, the sender's own solid angle, here capped at
+    /// the bin's solid angle (as printed it grows without bound as two elements meet). Loses the light
+    /// of every element in a bin but the closest.
     ElementArea,
     /// Eq. 5 under the paper's own last assumption, that the closest element covers its bin:
     /// `L_y (n_x·ω_k) Ω_k` with the bin's solid angle `Ω_k`. The bins' cosine-weighted solid angles are
@@ -493,7 +508,8 @@ pub struct RadiositySolver {
     pub elements: Elements,
     pub hierarchy: Hierarchy,
     pub bins: Option<CubeBins>,
-    /// Per node, `6n²` bins: the node's own links from [`create_links`](Self::create_links).
+    /// Per node, `6n²` bins: the node's own links from [`create_links`](Self::create_links), freed by
+    /// [`refine_and_push`](Self::refine_and_push) once pushed down.
     pub links: Vec<Link>,
     /// Per element, `6n²` bins: the receiving links of its leaf after
     /// [`refine_and_push`](Self::refine_and_push).
@@ -603,9 +619,11 @@ impl RadiositySolver {
                         if r <= 1e-9 || n.dot(d) <= 0.0 {
                             return;
                         }
-                        let slot = &mut out[bins.bin(d) as usize];
-                        if r < slot.distance {
-                            (slot.node, slot.distance) = (link.node, r);
+                        let bin = bins.bin(d);
+                        let depth = depth(&nodes[link.node as usize], x, bins.centre(bin), r);
+                        let slot = &mut out[bin as usize];
+                        if depth < slot.distance {
+                            (slot.node, slot.distance) = (link.node, depth);
                         }
                     });
                 }
@@ -614,6 +632,8 @@ impl RadiositySolver {
             fill_holes(out, bins, n);
         });
         self.leaf_links = leaf_links;
+        // The nodes' own links are only the push-down's input: free them (they are the larger array).
+        self.links = Vec::new();
         self.times.refine_push_ms = start.elapsed().as_secs_f32() * 1e3;
     }
 
@@ -696,8 +716,10 @@ fn gather(e: usize, links: &[Link], bins: &CubeBins, elements: &Elements, nodes:
                 continue;
             }
             let cos_x = n.dot(w).max(0.0);
-            // Eq. 5 per unit of the bin's cosine-weighted solid angle, so that it adds the same way.
-            let solid = (facing.max(0.0) * y.area / r2).min(2.0 * PI);
+            // Eq. 5 per unit of the bin's cosine-weighted solid angle, so that it adds the same way; the
+            // element's solid angle is capped at its bin's (as printed it grows without bound as two
+            // elements meet).
+            let solid = (facing.max(0.0) * y.area / r2).min(omega);
             radiance[link.node as usize] * (cos_x * solid / (cos_bin * omega))
         };
         sum += incoming * (cos_bin * omega);
@@ -789,7 +811,8 @@ impl Linker<'_> {
             let d = p - na.position;
             let r = d.length();
             if r > 1e-9 && na.normal.dot(d) > -na.cone.sin() {
-                self.store(a, bins.bin(d), b, r);
+                let bin = bins.bin(d);
+                self.store(a, bin, b, depth(nb, na.position, bins.centre(bin), r));
             }
         });
     }
@@ -830,6 +853,21 @@ fn fill_holes(links: &mut [Link], bins: &CubeBins, n: Vec3) {
     for (k, link) in fills {
         links[k] = link;
     }
+}
+
+/// How far a bin's ray from `x` (unit centre direction `w`) travels to sender `y`, for choosing the
+/// closest link of a bin: where the ray meets the disc of a leaf not seen edge-on (so that two layers a millimetre apart, such as a lamp under a ceiling, are told apart whatever the
+/// sample points), else the distance `r` to the sample point. Like a shadow map's depth.
+fn depth(y: &Node, x: Vec3, w: Vec3, r: f32) -> f32 {
+    let facing = y.normal.dot(w);
+    if y.is_leaf() && facing.abs() > 0.2 {
+        let t = y.normal.dot(y.position - x) / facing;
+        // Only where the ray meets the disc itself (give or take its radius).
+        if t > 0.0 && t.is_finite() && (x + w * t).distance_squared(y.position) <= 4.0 * y.radius * y.radius {
+            return t;
+        }
+    }
+    r
 }
 
 /// Points of node `y` for rasterising it into the bins it spans seen from `from`, the centre first: the
@@ -1076,11 +1114,14 @@ mod tests {
                 }
                 // `a` is in `b`'s bin towards `a`'s centre, the opposite of `a`'s bin towards `b`, unless
                 // something no farther took it.
-                let back = s.links[b as usize * per + bins.bin(d) as usize];
+                let bin = bins.bin(d);
+                let back = s.links[b as usize * per + bin as usize];
                 if back.node == a as u32 {
                     agreeing += 1;
                 } else {
-                    assert!(back.distance <= d.length() + 1e-5, "nodes {a} and {b}: the other end holds {back:?}");
+                    // Bins compare how far their ray goes to each sender (`depth`).
+                    let own = depth(&na, nb.position, bins.centre(bin), d.length());
+                    assert!(back.distance <= own + 1e-5, "nodes {a} and {b} ({own} apart): the other end holds {back:?}");
                     displaced += 1;
                 }
             }
