@@ -132,9 +132,10 @@ fn accuracy(device: &mut String) -> Result<String, String> {
     for (scene, name) in scenes {
         let reference = truth(name)?;
         let mut configs: Vec<(String, RadiositySettings)> = vec![
-            ("low (6×12×12)".into(), RadiositySettings::LOW),
-            ("medium (6×16×16, default)".into(), RadiositySettings::MEDIUM),
-            ("high (6×20×20)".into(), RadiositySettings::HIGH),
+            ("low (6×12×12, 4 bounces)".into(), RadiositySettings::LOW),
+            ("medium (6×16×16, 8 bounces; default)".into(), RadiositySettings::MEDIUM),
+            ("high (6×20×20, 16 bounces)".into(), RadiositySettings::HIGH),
+            ("medium, 4 bounces".into(), RadiositySettings { bounces: 4, ..RadiositySettings::MEDIUM }),
         ];
         if name == "cornell" {
             for bins in [8, 12] {
@@ -157,10 +158,10 @@ fn accuracy(device: &mut String) -> Result<String, String> {
 /// Bounce counts on `cornell` against the per-bounce truths.
 fn bounces(device: &mut String) -> Result<String, String> {
     let mut out = String::from(
-        "`cornell`, medium preset, against the truth with the same number of bounces (`cornell_b1`, `_b2`; all for 4 and 8).\n\n\
+        "`cornell`, medium preset, against the truth with the same number of bounces (`cornell_b1`, `_b2`; all for 4, 8 and 16), no early stop.\n\n\
          | bounces | truth | block RMSE | pixel RMSE | energy | blocks > 50 % off | bounces run |\n|---|---|---|---|---|---|---|\n",
     );
-    for (bounces, name) in [(1, "cornell_b1"), (2, "cornell_b2"), (4, "cornell"), (8, "cornell")] {
+    for (bounces, name) in [(1, "cornell_b1"), (2, "cornell_b2"), (4, "cornell"), (8, "cornell"), (16, "cornell")] {
         let settings = RadiositySettings { bounces, stop_threshold: 0.0, ..RadiositySettings::MEDIUM };
         let report = render(device, &options(StandardScene::Cornell, settings))?;
         let m = compare(&report.image, &truth(name)?)?;

@@ -21,7 +21,8 @@ const EXAMPLES: &[(&str, &[&str], bool)] = &[
     ("cellar", METHODS, true),
     ("sponza_like", METHODS, true),
     ("open_field", METHODS, true),
-    ("dynamic", METHODS, true),
+    // Radiosity re-solves in every frame its objects move; tested headless instead.
+    ("dynamic", &["rh", "vpl", "rsm", "drm"], true),
     ("radiance_hints", &["rh"], true),
     ("vpl_ssbc", &["vpl"], true),
     ("rsm_gather", &["rsm"], true),

@@ -14,12 +14,7 @@ use bevy_diffuse_gi::headless::{HeadlessMethod, HeadlessOptions};
 use bevy_diffuse_gi::metrics;
 use bevy_diffuse_gi::rsm_gather::{RsmGatherSettings, RsmSampleWeights};
 use bevy_diffuse_gi::scenes::StandardScene;
-use common::{Region, check, render};
-
-fn ground_truth(name: &str) -> HdrImage {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("assets/ground_truth").join(name);
-    HdrImage::read(&path).unwrap_or_else(|e| panic!("ground truth {}: {e}", path.display()))
-}
+use common::{Region, check, ground_truth, render, within};
 
 fn rsm_gather(scene: StandardScene, settings: RsmGatherSettings) -> HdrImage {
     render(&HeadlessOptions {
@@ -52,25 +47,6 @@ const BOX_BY_GREEN: Region = Region::new("small box side facing the green wall",
 /// The ceiling: lit by the white floor.
 const CEILING: Region = Region::new("ceiling", 60, 8, 196, 30);
 
-/// Asserts the error and energy of `image` against `truth` are within the bounds, and nothing is
-/// non-finite; returns the metrics.
-#[track_caller]
-fn within(test: &str, image: &HdrImage, truth: &HdrImage, max_block_rmse: f64, energy: (f64, f64)) -> metrics::ErrorMetrics {
-    check(test, !image.has_non_finite(), image, Some(truth), "NaN or Inf in the indirect light".into());
-    let m = metrics::compare(image, truth).expect("same size");
-    eprintln!("{test}: block rel. RMSE {:.3}, energy {:.3}", m.block_relative_rmse, m.energy_ratio);
-    check(
-        test,
-        m.block_relative_rmse <= max_block_rmse && (energy.0..=energy.1).contains(&m.energy_ratio),
-        image,
-        Some(truth),
-        format!(
-            "block rel. RMSE {:.3} (at most {max_block_rmse}), energy {:.3} (in {energy:?})",
-            m.block_relative_rmse, m.energy_ratio
-        ),
-    );
-    m
-}
 
 /// Asserts the two colour-bleeding regions of `cornell`: red on the floor by the red wall, green on the
 /// small box's side facing the green wall.

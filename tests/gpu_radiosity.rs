@@ -5,7 +5,6 @@
 
 mod common;
 
-use std::path::PathBuf;
 
 use bevy_diffuse_gi::camera::GiMethod;
 use bevy_diffuse_gi::hdr_image::HdrImage;
@@ -13,45 +12,17 @@ use bevy_diffuse_gi::headless::{HeadlessMethod, HeadlessOptions, HeadlessReport}
 use bevy_diffuse_gi::metrics;
 use bevy_diffuse_gi::radiosity::RadiositySettings;
 use bevy_diffuse_gi::scenes::StandardScene;
-use common::{Region, check, render};
+use common::{Region, check, ground_truth, render, within};
 
-fn ground_truth(name: &str) -> HdrImage {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("assets/ground_truth").join(name);
-    HdrImage::read(&path).unwrap_or_else(|e| panic!("ground truth {}: {e}", path.display()))
-}
-
+/// A radiosity render of `options` (indirect light only); `frames` as the options say.
 fn radiosity(options: HeadlessOptions) -> HeadlessReport {
-    render(&HeadlessOptions {
-        method: HeadlessMethod::Gi(GiMethod::Radiosity),
-        indirect_only: true,
-        frames: 3,
-        ..options
-    })
+    render(&HeadlessOptions { method: HeadlessMethod::Gi(GiMethod::Radiosity), indirect_only: true, ..options })
 }
 
 fn scene(scene: StandardScene) -> HdrImage {
-    radiosity(HeadlessOptions { scene, ..Default::default() }).image
+    radiosity(HeadlessOptions { scene, frames: 3, ..Default::default() }).image
 }
 
-/// Asserts the error and energy of `image` against `truth` are within the bounds and nothing is
-/// non-finite; returns the metrics.
-#[track_caller]
-fn within(test: &str, image: &HdrImage, truth: &HdrImage, max_block_rmse: f64, energy: (f64, f64)) -> metrics::ErrorMetrics {
-    check(test, !image.has_non_finite(), image, Some(truth), "NaN or Inf in the indirect light".into());
-    let m = metrics::compare(image, truth).expect("same size");
-    eprintln!("{test}: block rel. RMSE {:.3}, energy {:.3}", m.block_relative_rmse, m.energy_ratio);
-    check(
-        test,
-        m.block_relative_rmse <= max_block_rmse && (energy.0..=energy.1).contains(&m.energy_ratio),
-        image,
-        Some(truth),
-        format!(
-            "block rel. RMSE {:.3} (at most {max_block_rmse}), energy {:.3} (in {energy:?})",
-            m.block_relative_rmse, m.energy_ratio
-        ),
-    );
-    m
-}
 
 const FLOOR_BY_RED: Region = Region::new("floor by the red wall", 12, 228, 40, 246);
 const BOX_BY_GREEN: Region = Region::new("small box side facing the green wall", 186, 175, 192, 225);
@@ -61,9 +32,9 @@ const CEILING: Region = Region::new("ceiling", 60, 8, 196, 30);
 fn radiosity_matches_the_truth_of_cornell_and_bleeds_colour() {
     let test = "radiosity_cornell";
     let truth = ground_truth("cornell.exr");
-    // Measured 0.156 / 1.005 (16 bins); the low preset (12 bins) 0.32 / 0.87.
+    // Measured 0.150 / 1.076 (16 bins, 8 bounces); 8 bins 0.49 / 1.29.
     let image = scene(StandardScene::Cornell);
-    within(test, &image, &truth, 0.19, (0.92, 1.08));
+    within(test, &image, &truth, 0.19, (0.97, 1.15));
     let floor = FLOOR_BY_RED.mean(test, &image);
     check(test, floor[0] > 3.0 * floor[1] && floor[0] > 0.05, &image, Some(&truth), format!("no red on the floor: {floor:?}"));
     let (side, ceiling) = (BOX_BY_GREEN.mean(test, &image), CEILING.mean(test, &image));
@@ -75,7 +46,7 @@ fn radiosity_matches_the_truth_of_cornell_and_bleeds_colour() {
         format!("no green on the box side: {side:?} against the ceiling's {ceiling:?}"),
     );
     // More bins are more accurate (the bins a surface only partly covers count as covered).
-    let coarse = radiosity(HeadlessOptions { radiosity: RadiositySettings { bins: 8, ..Default::default() }, ..Default::default() });
+    let coarse = radiosity(HeadlessOptions { radiosity: RadiositySettings { bins: 8, ..Default::default() }, frames: 3, ..Default::default() });
     let coarse = metrics::compare(&coarse.image, &truth).unwrap().block_relative_rmse;
     let fine = metrics::compare(&image, &truth).unwrap().block_relative_rmse;
     check(test, coarse > fine + 0.1, &image, Some(&truth), format!("8 bins {coarse:.3} against 16 bins {fine:.3}"));
@@ -85,10 +56,10 @@ fn radiosity_matches_the_truth_of_cornell_and_bleeds_colour() {
 fn an_emissive_panel_alone_lights_the_room_in_its_colour() {
     let test = "radiosity_emissive_panel";
     let truth = ground_truth("emissive_panel.exr");
-    // Measured 0.407 / 0.809: the panel covers few bins from most receivers (blotches), and the tracer
+    // Measured 0.330 / 0.884: the panel covers few bins from most receivers (blotches), and the tracer
     // lets its upper face emit too.
     let image = scene(StandardScene::EmissivePanel);
-    within(test, &image, &truth, 0.45, (0.72, 0.9));
+    within(test, &image, &truth, 0.4, (0.8, 0.96));
     // The warm colour of the panel: R/G and B/G of the back wall within 15 % of the truth's.
     let wall = Region::new("back wall", 90, 60, 166, 110);
     let (a, r) = (wall.mean(test, &image), wall.mean(test, &truth));
@@ -100,18 +71,18 @@ fn an_emissive_panel_alone_lights_the_room_in_its_colour() {
 
 #[test]
 fn every_light_kind_bounces_against_its_own_truth() {
-    // Spot (cellar, light through a door), measured 0.581 / 0.617; directional (sponza_like, the sun
-    // through the roof), 0.243 / 0.877; point with six shadow directions (dynamic at rest), 0.153 / 0.895.
-    within("radiosity_cellar", &scene(StandardScene::Cellar), &ground_truth("cellar.exr"), 0.65, (0.55, 0.7));
-    within("radiosity_sponza_like", &scene(StandardScene::SponzaLike), &ground_truth("sponza_like.exr"), 0.28, (0.8, 0.95));
-    within("radiosity_dynamic", &scene(StandardScene::Dynamic), &ground_truth("dynamic.exr"), 0.19, (0.83, 0.96));
+    // Spot (cellar, light through a door), measured 0.342 / 0.769; directional (sponza_like, the sun
+    // through the roof), 0.207 / 0.942; point (dynamic at rest), 0.065 / 0.982.
+    within("radiosity_cellar", &scene(StandardScene::Cellar), &ground_truth("cellar.exr"), 0.4, (0.7, 0.85));
+    within("radiosity_sponza_like", &scene(StandardScene::SponzaLike), &ground_truth("sponza_like.exr"), 0.25, (0.88, 1.0));
+    within("radiosity_dynamic", &scene(StandardScene::Dynamic), &ground_truth("dynamic.exr"), 0.1, (0.93, 1.03));
 }
 
 #[test]
 fn a_moving_mesh_moves_its_elements_instead_of_rebuilding_them_and_the_light_follows() {
     let test = "radiosity_moving_mesh";
     let low = RadiositySettings::LOW;
-    let still = radiosity(HeadlessOptions { scene: StandardScene::Dynamic, radiosity: low.clone(), ..Default::default() });
+    let still = radiosity(HeadlessOptions { scene: StandardScene::Dynamic, radiosity: low.clone(), frames: 3, ..Default::default() });
     let moving = radiosity(HeadlessOptions {
         scene: StandardScene::Dynamic,
         radiosity: low,
@@ -124,7 +95,8 @@ fn a_moving_mesh_moves_its_elements_instead_of_rebuilding_them_and_the_light_fol
     check(test, !moving.image.has_non_finite(), &moving.image, None, "NaN or Inf".into());
     // The box moved: its elements were moved and refitted, links and light redone, nothing rebuilt.
     check(test, info["last_work"] == "Refit", &moving.image, None, format!("the last solve did {}", info["last_work"]));
-    check(test, info["solves"].as_u64() > Some(2), &moving.image, None, format!("{} solves", info["solves"]));
+    // One solve per frame the box moved (and the first).
+    check(test, info["solves"].as_u64() >= Some(8), &moving.image, None, format!("{} solves", info["solves"]));
     let change = metrics::compare(&moving.image, &still.image).expect("same size").block_relative_rmse;
     check(test, change > 0.01, &moving.image, Some(&still.image), format!("the light did not follow the box: {change:.4}"));
 }
@@ -141,7 +113,7 @@ fn absurd_settings_are_clamped_and_stay_finite() {
         intensity: -1.0,
         ..Default::default()
     };
-    let image = radiosity(HeadlessOptions { radiosity: settings, ..Default::default() }).image;
+    let image = radiosity(HeadlessOptions { radiosity: settings, frames: 3, ..Default::default() }).image;
     check(test, !image.has_non_finite(), &image, None, "NaN or Inf from clamped settings".into());
     // Intensity −1 is clamped to 0: no light.
     check(test, image.pixels.iter().all(|p| p[..3] == [0.0; 3]), &image, None, "intensity 0 still adds light".into());

@@ -4,7 +4,6 @@
 
 mod common;
 
-use std::path::PathBuf;
 
 use bevy_diffuse_gi::camera::{GiDebugView, GiMethod};
 use bevy_diffuse_gi::hdr_image::HdrImage;
@@ -12,12 +11,7 @@ use bevy_diffuse_gi::headless::{HeadlessMethod, HeadlessOptions};
 use bevy_diffuse_gi::metrics;
 use bevy_diffuse_gi::scenes::StandardScene;
 use bevy_diffuse_gi::vpl::VplSettings;
-use common::{Region, check, luminance, render};
-
-fn ground_truth(name: &str) -> HdrImage {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("assets/ground_truth").join(name);
-    HdrImage::read(&path).unwrap_or_else(|e| panic!("ground truth {}: {e}", path.display()))
-}
+use common::{Region, check, ground_truth, luminance, render};
 
 fn vpl_options(scene: StandardScene, vpl: VplSettings) -> HeadlessOptions {
     HeadlessOptions {

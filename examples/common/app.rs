@@ -26,6 +26,8 @@ pub enum CiMode {
     OwnMethod,
     /// One screenshot per method, in [`GiMethod::ALL`] order.
     AllMethods,
+    /// One screenshot per method of the list.
+    Methods(&'static [GiMethod]),
     /// The example inserts its own [`CiSteps`] and answers [`CiStep`] itself.
     Custom,
 }
@@ -96,6 +98,10 @@ pub fn run(spec: ExampleSpec, customise: impl FnOnce(&mut App)) -> AppExit {
         }
         CiMode::AllMethods => {
             app.insert_resource(CiSteps(GiMethod::ALL.iter().map(|m| m.name().to_string()).collect()))
+                .add_systems(Update, ci_method_step);
+        }
+        CiMode::Methods(methods) => {
+            app.insert_resource(CiSteps(methods.iter().map(|m| m.name().to_string()).collect()))
                 .add_systems(Update, ci_method_step);
         }
         CiMode::Custom => {}

@@ -1150,6 +1150,30 @@ mod tests {
         assert!(under < 0.5 * open, "under the blocker {under}, in the open {open}");
     }
 
+    /// A floor under a constant sky (§4.4: empty bins see the environment) receives π L_sky in the open,
+    /// and less under a roof that hides half of its sky.
+    #[test]
+    fn the_sky_lights_through_empty_bins_and_a_roof_shadows_it() {
+        let sky = Vec3::new(1.0, 2.0, 3.0);
+        let floor = RadiosityPatch { triangles: square(Vec3::ZERO, Vec3::Y, 4.0, Vec3::splat(0.5), Vec3::ZERO) };
+        let params = SolveParams { bins: 12, bounces: 1, environment: sky, ..Default::default() };
+        let mut open = solver(std::slice::from_ref(&floor), 0.25, &params);
+        open.illuminate(&vec![Vec3::ZERO; open.elements.len()], &params);
+        for g in &open.gathered {
+            assert!((*g - sky * PI).abs().max_element() < 1e-3 * PI * 3.0, "{g}");
+        }
+        let roof = RadiosityPatch { triangles: square(Vec3::new(0.0, 0.3, 0.0), -Vec3::Y, 1.0, Vec3::splat(0.5), Vec3::ZERO) };
+        let mut covered = solver(&[floor, roof], 0.125, &params);
+        covered.illuminate(&vec![Vec3::ZERO; covered.elements.len()], &params);
+        let under = (0..covered.elements.len())
+            .filter(|&e| covered.elements.positions[e].y.abs() < 1e-4 && covered.elements.positions[e].length() < 0.1)
+            .map(|e| covered.gathered[e].z)
+            .fold(f32::INFINITY, f32::min);
+        // The roof, 1 m wide at 0.3 m, hides most of the sky above the floor's centre (its own underside
+        // sends the floor's reflected sky, 0.5 × π L, back down, also weaker than the sky).
+        assert!(under < 0.75 * PI * sky.z, "under the roof {under} against the sky's {}", PI * sky.z);
+    }
+
     #[test]
     fn degenerate_input_gives_finite_light() {
         let mut triangles = square(Vec3::ZERO, Vec3::Y, 1.0, Vec3::splat(0.8), Vec3::splat(1e30));

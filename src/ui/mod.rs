@@ -372,7 +372,7 @@ pub fn radiosity_ui(ui: &mut egui::Ui, settings: &mut Mut<RadiositySettings>) {
             }
         }
     });
-    ui.add(egui::Slider::new(&mut v.bins, 2..=32).text("bins per cube side N (6 N x N per element)"));
+    ui.add(egui::Slider::new(&mut v.bins, 2..=24).text("bins per cube side N (6 N x N per element)"));
     ui.add(egui::Slider::new(&mut v.bounces, 1..=16).text("bounces"));
     ui.add(egui::Slider::new(&mut v.stop_threshold, 0.0..=1.0).logarithmic(true).text("stop below this share"));
     ui.add(egui::Slider::new(&mut v.subdivision_threshold, 0.05..=8.0).logarithmic(true).text("subdivide above x bin"));

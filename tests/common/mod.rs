@@ -99,3 +99,29 @@ pub fn traced_direct(scene: bevy_diffuse_gi::scenes::StandardScene) -> HdrImage 
     });
     report.extra_images.into_iter().find(|(n, _)| *n == "direct").map(|(_, i)| i).expect("direct image")
 }
+
+/// Asserts the error and energy of `image` against `truth` are within the bounds, and nothing is
+/// non-finite; returns the metrics.
+#[track_caller]
+pub fn within(test: &str, image: &HdrImage, truth: &HdrImage, max_block_rmse: f64, energy: (f64, f64)) -> metrics::ErrorMetrics {
+    check(test, !image.has_non_finite(), image, Some(truth), "NaN or Inf in the indirect light".into());
+    let m = metrics::compare(image, truth).expect("same size");
+    eprintln!("{test}: block rel. RMSE {:.3}, energy {:.3}", m.block_relative_rmse, m.energy_ratio);
+    check(
+        test,
+        m.block_relative_rmse <= max_block_rmse && (energy.0..=energy.1).contains(&m.energy_ratio),
+        image,
+        Some(truth),
+        format!(
+            "block rel. RMSE {:.3} (at most {max_block_rmse}), energy {:.3} (in {energy:?})",
+            m.block_relative_rmse, m.energy_ratio
+        ),
+    );
+    m
+}
+
+/// A committed ground truth of `assets/ground_truth/`.
+pub fn ground_truth(name: &str) -> HdrImage {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("assets/ground_truth").join(name);
+    HdrImage::read(&path).unwrap_or_else(|e| panic!("ground truth {}: {e}", path.display()))
+}
