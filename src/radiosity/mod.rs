@@ -463,7 +463,9 @@ fn update_radiosity(
     let moved = state.links_key.is_none_or(|k| k.0 != snapshot.geometry_generation);
     if state.elements_key != elements_key || (moved && !move_instances(state, &snapshot)) {
         let start = std::time::Instant::now();
-        if state.elements_key.is_none_or(|k| (k.1, k.2) != (elements_key.unwrap().1, elements_key.unwrap().2)) {
+        // The cached elements were cut at another size or carry another exposure's emission.
+        let made_as = (settings.element_size.to_bits(), exposure.to_bits());
+        if state.elements_key.is_none_or(|k| (k.1, k.2) != made_as) {
             state.cache.clear();
         }
         // Only the instances that changed are re-made (a deforming mesh costs its own elements).
