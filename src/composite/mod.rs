@@ -429,6 +429,20 @@ pub fn draw_into_target(
     pipeline: &RenderPipeline,
     groups: &[(&BindGroup, &[u32])],
 ) {
+    draw_vertices_into_target(ctx, span, label, target, pipeline, groups, 0..3);
+}
+
+/// [`draw_into_target`] with the pipeline's own geometry: `vertices` non-indexed vertices (a method that
+/// draws a mesh into the target, pulling its vertices from storage buffers).
+pub fn draw_vertices_into_target(
+    ctx: &mut RenderContext,
+    span: &'static str,
+    label: &'static str,
+    target: &GiViewTarget,
+    pipeline: &RenderPipeline,
+    groups: &[(&BindGroup, &[u32])],
+    vertices: std::ops::Range<u32>,
+) {
     let diagnostics = ctx.diagnostic_recorder();
     let diagnostics = diagnostics.as_deref();
     let time = diagnostics.time_span(ctx.command_encoder(), span);
@@ -438,7 +452,7 @@ pub fn draw_into_target(
         for (index, (group, offsets)) in groups.iter().enumerate() {
             pass.set_bind_group(index, group, offsets);
         }
-        pass.draw(0..3, 0..1);
+        pass.draw(vertices, 0..1);
     }
     time.end(ctx.command_encoder());
 }

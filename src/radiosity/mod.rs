@@ -397,7 +397,7 @@ fn instance_elements(snapshot: &SceneSnapshot, instance: &crate::scene::Snapshot
 
 /// Direct irradiance (lux) from the GI lights at each element, with a shadow ray each.
 fn direct_irradiance(snapshot: &SceneSnapshot, elements: &Elements, gi_lights: &[Entity]) -> Vec<Vec3> {
-    let epsilon = snapshot.bounds().map_or(1e-4, |(lo, hi)| ((hi - lo).length() * 1e-4).max(1e-6));
+    let epsilon = snapshot.ray_epsilon();
     let lights: Vec<_> = snapshot.lights.iter().filter(|l| gi_lights.contains(&l.entity)).map(|l| l.light).collect();
     (0..elements.len())
         .into_par_iter()

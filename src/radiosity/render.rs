@@ -4,7 +4,6 @@
 use bevy::core_pipeline::Core3d;
 use bevy::core_pipeline::prepass::ViewPrepassTextures;
 use bevy::prelude::*;
-use bevy::render::diagnostic::RecordDiagnostics;
 use bevy::render::render_resource::binding_types::{storage_buffer_read_only, texture_2d, texture_depth_2d, uniform_buffer};
 use bevy::render::render_resource::*;
 use bevy::render::renderer::{RenderContext, RenderDevice, ViewQuery};
@@ -158,17 +157,15 @@ fn draw_radiosity(
         &pipeline_cache.get_bind_group_layout(&pipelines.mesh_layout),
         &BindGroupEntries::sequential((vertices.as_entire_binding(), indices.as_entire_binding())),
     );
-    let diagnostics = ctx.diagnostic_recorder();
-    let diagnostics = diagnostics.as_deref();
-    let span = diagnostics.time_span(ctx.command_encoder(), "diffuse_gi/radiosity_display");
-    {
-        let mut pass = crate::composite::begin_target_pass(&mut ctx, "diffuse_gi_radiosity_display", &target.texture.default_view);
-        pass.set_render_pipeline(pipeline);
-        pass.set_bind_group(0, &view_group, &[view_offset.offset]);
-        pass.set_bind_group(1, &mesh_group, &[]);
-        pass.draw(0..*count, 0..1);
-    }
-    span.end(ctx.command_encoder());
+    crate::composite::draw_vertices_into_target(
+        &mut ctx,
+        "diffuse_gi/radiosity_display",
+        "diffuse_gi_radiosity_display",
+        target,
+        pipeline,
+        &[(&view_group, &[view_offset.offset]), (&mesh_group, &[])],
+        0..*count,
+    );
 }
 
 /// Adds the radiosity render-world systems; called from [`super::RadiosityPlugin::finish`].

@@ -881,6 +881,12 @@ impl SceneSnapshot {
         self.bounds
     }
 
+    /// How far a ray leaving a surface starts from it: 10⁻⁴ of the scene's diagonal (at least 10⁻⁶ m;
+    /// 10⁻⁴ m for an empty scene), so that rays do not hit the surface they leave at any scale.
+    pub fn ray_epsilon(&self) -> f32 {
+        self.bounds.map_or(1e-4, |(lo, hi)| ((hi - lo).length() * 1e-4).max(1e-6))
+    }
+
     /// Closest hit over the two-level BVH.
     fn traverse(&self, ray: Ray, faces: Faces) -> Option<SceneHit> {
         let tlas = self.tlas.as_ref()?;

@@ -143,11 +143,6 @@ fn first_hit_falloff(light: &SnapshotLight, distance: f32) -> f32 {
     }
 }
 
-/// The snapshot's ray offset: 10⁻⁴ of its diagonal (the same rule the path tracer uses).
-pub fn scene_epsilon(snapshot: &SceneSnapshot) -> f32 {
-    snapshot.bounds().map_or(1e-4, |(lo, hi)| ((hi - lo).length() * 1e-4).max(1e-6))
-}
-
 /// Side of the pilot grid over each light's emission domain (see [`EmissionGuide`]).
 pub const PILOT_GRID: u32 = 32;
 /// Weight of a pilot cell whose first surface faces away from every viewer: kept above zero, so that the
@@ -275,7 +270,7 @@ pub fn generate_vpls(
     if lights.is_empty() || settings.paths == 0 || settings.bounces == 0 {
         return Vec::new();
     }
-    let epsilon = scene_epsilon(snapshot);
+    let epsilon = snapshot.ray_epsilon();
     let extent = bounds.1 - bounds.0;
     let across = extent.x * extent.z + extent.x * extent.y + extent.y * extent.z;
     let guide = |i: usize| guides.and_then(|g| g.get(i));
