@@ -34,8 +34,14 @@
 //! * **Culling**: camera rays skip the faces a material's `cull_mode` culls, so the tracer sees what Bevy
 //!   shows; light transport treats every surface as opaque and two-sided.
 //!
-//! Not modelled: specular reflection, transmission, emissive textures, alpha masks, environment maps and
-//! ambient light.
+//! * **Environment**: a path that escapes the scene after a reflection gathers the radiance of
+//!   [`SceneSnapshot::environment`] (the GI camera's `EnvironmentMapLight`, [`crate::scene::Environment`])
+//!   in its direction. Environment light reflected once is binned with the indirect light, as emission
+//!   is: Bevy lights every surface with the environment's diffuse map *unoccluded*, so the occluded sky
+//!   light a room gets through its openings is light a GI method must add (`radiosity` does; see its
+//!   docs for the diffuse map). Camera rays that miss see black (no skybox).
+//!
+//! Not modelled: specular reflection, transmission, emissive textures, alpha masks and ambient light.
 
 use std::f32::consts::PI;
 use std::time::Instant;
@@ -362,6 +368,10 @@ fn trace_path_from(
         scene.intersect(origin, direction, 0.0, f32::INFINITY)
     };
     let Some(mut hit) = first else {
+        // A probe's ray that escapes sees the environment; the camera does not (Bevy draws no skybox here).
+        if let (false, Some(environment)) = (camera_ray, scene.environment.as_deref()) {
+            sum.add(0, environment.radiance(direction));
+        }
         return;
     };
     sum.hits += 1;
@@ -428,6 +438,12 @@ fn trace_path_from(
             return;
         }
         let Some(next_hit) = scene.intersect(p, next, 0.0, f32::INFINITY) else {
+            // The path escaped: the environment's light, reflected by the `depth` vertices so far (once: the
+            // GI's light, binned as indirect like emission reflected once).
+            if let Some(environment) = scene.environment.as_deref() {
+                let bin = if depth == 1 { 2 } else { depth };
+                sum.add(bin, throughput * environment.radiance(next));
+            }
             return;
         };
         hit = next_hit;

@@ -217,3 +217,32 @@ fn burley_factor_is_one_head_on_and_brighter_at_grazing_light() {
     let f = burley_over_lambert(n, n, grazing, 1.0);
     assert!(f > 1.3 && f < 2.5, "grazing factor {f}");
 }
+
+#[test]
+fn a_floor_under_a_sky_reflects_rho_times_the_sky_as_indirect_light() {
+    use crate::scene::Environment;
+    let rho = Vec3::new(0.2, 0.5, 0.7);
+    let sky = Vec3::new(3.0, 2.0, 1.0);
+    let material = SnapshotMaterial { diffuse: rho, ..SnapshotMaterial::DEFAULT_GREY };
+    // A large floor, seen from just above its middle: every path that leaves it escapes.
+    let s = 1000.0;
+    let floor = vec![
+        InputTriangle::flat([Vec3::new(-s, 0.0, -s), Vec3::new(-s, 0.0, s), Vec3::new(s, 0.0, s)], 0),
+        InputTriangle::flat([Vec3::new(-s, 0.0, -s), Vec3::new(s, 0.0, s), Vec3::new(s, 0.0, -s)], 0),
+    ];
+    let mut scene = SceneSnapshot::build(floor, vec![material], vec![], vec![]);
+    let settings = ReferenceSettings { width: 8, height: 8, samples_per_pixel: 64, seed: 1, ..Default::default() };
+    let camera = camera_at(Vec3::new(0.0, 1.0, 0.0), Vec3::new(0.0, 0.0, -0.01), Vec3::NEG_Z, 0.5);
+    let dark = render(&scene, &camera, &settings);
+    assert_eq!(mean_rgb(&dark.full), Vec3::ZERO, "no environment, no light");
+
+    scene.environment = Some(std::sync::Arc::new(Environment::uniform(sky)));
+    let lit = render(&scene, &camera, &settings);
+    // L = ρ/π · π L_sky, reflected once: the GI's light, so in the indirect image, not the direct one.
+    assert_rel(mean_rgb(&lit.indirect), rho * sky, 0.01, "sky reflected by the floor");
+    assert_eq!(mean_rgb(&lit.direct), Vec3::ZERO);
+    // A probe looking up sees the sky itself (no reflection).
+    let [emission, direct, indirect] = incident_radiance(&scene, Vec3::Y, Vec3::Y, &settings, 4, 0);
+    assert_rel(emission, sky, 1e-6, "the sky seen by a probe");
+    assert_eq!(direct + indirect, Vec3::ZERO);
+}

@@ -16,7 +16,7 @@ use bevy::mesh::skinning::{SkinnedMesh, SkinnedMeshInverseBindposes};
 use bevy::mesh::UvChannel;
 
 use super::{
-    CulledFace, InputTriangle, MeshGeometry, MetallicTexture, SceneSnapshot, SnapshotLight, SnapshotLightEntry,
+    CulledFace, Environment, InputTriangle, MeshGeometry, MetallicTexture, SceneSnapshot, SnapshotLight, SnapshotLightEntry,
     SnapshotMaterial, SnapshotTexture, TextureRef,
 };
 
@@ -41,6 +41,7 @@ impl Plugin for SceneSnapshotPlugin {
                         .and_then(resource_exists::<Assets<Image>>),
                 ),
                 update_snapshot_lights,
+                update_snapshot_environment.run_if(resource_exists::<Assets<Image>>),
             )
                 .in_set(SceneSnapshotSystems::Update)
                 .after(TransformSystems::Propagate)
@@ -637,6 +638,67 @@ fn update_snapshot_lights(
         })
         .collect();
     snapshot.light_generation += 1;
+}
+
+/// What [`SceneSnapshot::environment`] was read from: the image, Bevy's intensity and rotation.
+type EnvironmentKey = (AssetId<Image>, u32, [u32; 4]);
+
+/// Reads the environment light of the first active GI camera (by camera order; any camera where there
+/// is no GI camera) that has an `EnvironmentMapLight`, when it or its image changes. An image that cannot be read is reported once,
+/// by path, and leaves no environment.
+fn update_snapshot_environment(
+    mut snapshot: ResMut<SceneSnapshot>,
+    cameras: Query<(&Camera, Option<&crate::camera::DiffuseGi>, &bevy::light::EnvironmentMapLight)>,
+    images: Res<Assets<Image>>,
+    assets: Option<Res<AssetServer>>,
+    mut events: MessageReader<AssetEvent<Image>>,
+    mut read: Local<Option<EnvironmentKey>>,
+    mut warned: Local<HashSet<AssetId<Image>>>,
+) {
+    // GI cameras first; without one (the tracer's own camera), any active camera.
+    let light = cameras
+        .iter()
+        .filter(|(camera, gi, _)| camera.is_active && gi.is_none_or(|gi| gi.enabled))
+        .min_by_key(|(camera, gi, _)| (gi.is_none(), camera.order))
+        .map(|(_, _, light)| light)
+        .filter(|light| light.intensity > 0.0);
+    let key = light.map(|l| {
+        let r = l.rotation;
+        (l.specular_map.id(), l.intensity.to_bits(), [r.x.to_bits(), r.y.to_bits(), r.z.to_bits(), r.w.to_bits()])
+    });
+    let modified = key.is_some_and(|(id, ..)| {
+        events.read().any(|e| matches!(e, AssetEvent::Modified { id: m } | AssetEvent::LoadedWithDependencies { id: m } if *m == id))
+    });
+    if key == *read && !modified {
+        return;
+    }
+    let Some(light) = light else {
+        *read = None;
+        if snapshot.environment.take().is_some() {
+            snapshot.environment_generation += 1;
+        }
+        return;
+    };
+    let Some(image) = images.get(&light.specular_map) else {
+        // Not loaded yet: try again next frame.
+        return;
+    };
+    *read = key;
+    let environment = match Environment::from_image(image, light.intensity, light.rotation) {
+        Ok(e) => Some(Arc::new(e)),
+        Err(why) => {
+            if warned.insert(light.specular_map.id()) {
+                let name = assets
+                    .as_ref()
+                    .and_then(|a| a.get_path(light.specular_map.id()))
+                    .map_or_else(|| format!("{:?}", light.specular_map.id()), |p| p.to_string());
+                warn!("diffuse_gi: the environment map {name} is not used for bounced light: {why}");
+            }
+            None
+        }
+    };
+    snapshot.environment = environment;
+    snapshot.environment_generation += 1;
 }
 
 /// Converts a Bevy light to the snapshot's units: lux for directional lights, candela (`lumens / 4π`,

@@ -37,6 +37,7 @@
 //! Morph targets are not applied (a morphed mesh is in its base shape); block-compressed textures cannot be
 //! read on the CPU and are white; alpha-blended materials are opaque to rays.
 
+pub mod environment;
 pub(crate) mod extract;
 
 use std::sync::Arc;
@@ -52,6 +53,7 @@ use obvhs::{
 };
 use obvhs_glam::Vec3A;
 
+pub use environment::Environment;
 pub use extract::{SceneSnapshotPlugin, SceneSnapshotSystems, SnapshotTimings, mesh_local_triangles, mesh_triangles, skinned_triangles};
 
 
@@ -567,6 +569,11 @@ pub struct SceneSnapshot {
     pub layout_generation: u64,
     /// Bumped every time the lights are re-read.
     pub light_generation: u64,
+    /// The environment light of the first active GI camera with a readable `EnvironmentMapLight`
+    /// ([`Environment`]); `None` for none. Escaping paths of the tracer and radiosity's empty bins see it.
+    pub environment: Option<Arc<Environment>>,
+    /// Bumped every time [`environment`](Self::environment) changes.
+    pub environment_generation: u64,
 }
 
 /// A triangle given to [`SceneSnapshot::build`] (world space) or [`MeshGeometry::new`] (local space).
@@ -598,6 +605,7 @@ impl std::fmt::Debug for SceneSnapshot {
             .field("lights", &self.lights)
             .field("geometry_generation", &self.geometry_generation)
             .field("light_generation", &self.light_generation)
+            .field("environment", &self.environment.as_ref().map(|e| e.face_size()))
             .finish()
     }
 }
