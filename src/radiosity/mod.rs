@@ -38,8 +38,13 @@
 //! 4. **Gather and pull up** (§4.3), bounce after bounce: each leaf sums `L_y cos θ Ω_bin` over its bins
 //!    (Eq. 2 with Eq. 5; [`LinkTransfer`] also offers Eq. 5's element area as printed), from the nodes'
 //!    outgoing radiance `L = L_e + ρ/π E`, pulled up area-weighted; the light a bounce adds decides when
-//!    to stop ([`stop_threshold`](RadiositySettings::stop_threshold)). Empty bins see the constant
-//!    [`sky`](RadiositySettings::sky) (§4.4).
+//!    to stop ([`stop_threshold`](RadiositySettings::stop_threshold): the mean relative change of the
+//!    lit elements, continued geometrically, so that a bright exterior does not end a dim room's
+//!    bounces). Empty bins see the environment
+//!    (§4.4): the GI camera's `EnvironmentMapLight` ([`SceneSnapshot::environment`], its specular map's
+//!    radiance averaged over each world-aligned bin once per change) plus the constant
+//!    [`sky`](RadiositySettings::sky). This is the environment's *direct* light on the elements, with
+//!    the occlusion Bevy's own image-based lighting lacks (see [`occluded_environment`]).
 //! 5. **Sources** (§4.4): emissive meshes are elements with `L_e > 0` (area lights); the GI lights
 //!    ([`GiLight`](crate::light::GiLight), every kind) give each element its direct irradiance through a
 //!    shadow ray against the snapshot's BVH (the one place rays are used: the paper's sources are
@@ -51,10 +56,14 @@
 //! # Where this departs from the paper, and why
 //! * **Where an element samples light**: at the centroid of its dual cell, not at the vertex, so that an
 //!   element on a mesh border (where a floor meets a wall) does not look at the back of the wall.
-//! * **Rasterised links**: a sender spanning several bins is stored in each bin its points cover
-//!   (children's centres for clusters, a disc for leaves), and an ancestor's link is re-binned by its
-//!   direction from the leaf during the push-down; holes left between covered bins are filled from their
-//!   neighbours. With one bin per link (the paper), 15 % of a closed box's bins stayed empty.
+//! * **Rasterised links**: a sender spanning several bins is stored in each bin it covers: a leaf in
+//!   the bin of its centre and in every bin whose *centre ray* meets its dual cell (the quads of vertex,
+//!   edge midpoints and centroid in its triangles), as a rasteriser samples pixel centres; a cluster in
+//!   the bins of its children's centres. An ancestor's link is re-binned by its direction from the leaf
+//!   during the push-down, and holes left between covered bins are filled from their neighbours. With one
+//!   bin per link (the paper), 15 % of a closed box's bins stayed empty; with every bin a leaf's disc
+//!   touched, each silhouette was half a bin too wide and a roof closed a quarter of the sky through its
+//!   opening (the roof-opening unit test: −18 % against the form factor then, −4.7 % now).
 //! * **Senders seen from behind still occlude** (one-sided culling only at the receiver), so single-sided
 //!   walls stop light.
 //! * **Bin solid angle** instead of the element's area in Eq. 5 (the paper's own last assumption), with
@@ -76,34 +85,42 @@
 //!
 //! # Measured (`docs/radiosity.md`, 256², lavapipe for the display, two CPU cores for the solve)
 //! Default preset (6 × 16 × 16 bins, 8 bounces), block relative RMSE / energy against the full
-//! path-traced truth: `cornell` 0.150 / 1.08, `cellar` 0.34 / 0.77, `sponza_like` 0.21 / 0.94,
-//! `dynamic` 0.065 / 0.98, `emissive_panel` 0.33 / 0.88, `open_field` 0.61 / 1.26. Bins matter most:
-//! `cornell` at 8, 12, 16 bins is 0.49, 0.26, 0.15 (20 bins, the high preset: 0.11). Eq. 5 with the
-//! element's area loses half the light (0.74 / 0.47). The meshes' own vertices as elements (the paper's)
-//! leak: `cellar`'s second room gets 1.8 times its light through the dividing wall (2.19 block RMSE),
-//! which cutting the meshes removes and the subdivision threshold cannot (leaves do not subdivide).
+//! path-traced truth: `cornell` 0.159 / 1.09, `cellar` 0.27 / 0.81, `sponza_like` 0.20 / 0.98,
+//! `dynamic` 0.058 / 1.00, `emissive_panel` 0.35 / 0.86, `open_field` 0.54 / 1.22, `sky_room` (an
+//! environment map only) 0.37 / 0.68. Bins matter most: `cornell` at 8, 12, 16 bins is 0.49, 0.26,
+//! 0.16 (the high preset: 0.13). Eq. 5 with the element's area loses more than half the light (0.74 /
+//! 0.46). The meshes' own vertices as elements (the paper's) leak: `cellar`'s second room gets 2.1
+//! times its light through the dividing wall (2.35 block RMSE), which cutting the meshes removes and the
+//! subdivision threshold cannot (leaves do not subdivide).
 //!
-//! A still frame (the solution reused) costs 1.11 × the frame without GI at 256² and 1.34 × at 512² on
-//! `cornell`, 1.45 × on `sponza_like`: the display pass draws every element triangle once per view.
+//! A still frame (the solution reused) costs 1.25 × the frame without GI at 256² and 1.29 × at 512² on
+//! `cornell`, 1.4–1.6 × on `sponza_like`: the display pass draws every element triangle once per view.
 //!
-//! One full solve of `cornell` (5 352 elements) takes 0.45 s at 6 × 8 × 8 bins, 1.2 s at 12, 2.4 s at 16;
-//! `sponza_like` (25 198 elements) 2.4, 5.5 and 10.6 s. Link creation is 80–90 % of it (the paper's
-//! Table 1 has it at 21–38 %, with its illumination on the GPU). Why the CPU: the link creation is a
+//! One full solve of `cornell` (5 352 elements) takes 0.6 s at 6 × 8 × 8 bins, 1.6 s at 12, 3.0 s at 16;
+//! `sponza_like` (25 198 elements) 3.0, 6.9 and 13.4 s. Link creation is 70–91 % of it (the paper's
+//! Table 1 has it at 21–38 %, with its illumination on the GPU); time per stage grows about linearly with
+//! the elements (log-log slopes 0.87–0.98; refine & push 1.6). Why the CPU: the link creation is a
 //! recursive, data-dependent descent of two hierarchies whose every step branches, which rayon runs per
 //! receiving segment without atomics; a GPU port would need a work queue per pair and atomic minima
-//! per bin, and the gather (1–2 % here) is not worth moving alone.
+//! per bin, and the gather (1 % here) is not worth moving alone. (Not measured on a GPU: no GPU machine
+//! was lent to this work.)
 //!
 //! # Known issues
 //! * Elements are one-sided: the back of a single-sided surface (a plane seen from below) gets no light.
-//! * Bins that a surface's silhouette crosses count as covered: a small bright patch is about 10 % too
-//!   bright on the receivers around it (the two facing squares of the tests).
+//! * A *cluster*'s silhouette still covers the bins it grazes (its children's centres are binned, not
+//!   its shape): the rim of an opening seen from far away closes some of it, and `sky_room`'s floor
+//!   gets about 70 % of the sky the truth gives it. Two facing squares exchange about 10 % too much.
 //! * Links are rebuilt from scratch on any geometry change, O(N log N) in the elements of the whole
 //!   scene and seconds for a room of 20 000 elements on two cores: a moving mesh makes the solution lag
 //!   (the solve runs on the main thread; it is not yet amortised or moved to a task).
 //! * A small bright source (an emissive panel) covers few bins from most receivers: its light on the
 //!   walls is blotchy, more so with fewer bins.
-//! * `EnvironmentMapLight` is not read (Bevy applies it itself, without occlusion); a constant sky colour
-//!   is.
+//! * Bevy lights every surface with an `EnvironmentMapLight`'s *diffuse* map itself, unoccluded; with
+//!   radiosity reading the same light, the sky is counted twice. Give the camera a black diffuse map
+//!   ([`occluded_environment`]) and keep the specular map for reflections and for radiosity.
+//! * An environment map whose image has no CPU data (`RenderAssetUsages::RENDER_WORLD` only, as
+//!   `EnvironmentMapLight::hemispherical_gradient` makes it) can only be read in the frame it is
+//!   created; after that it is reported once and not used.
 
 pub mod solver;
 mod render;
@@ -145,12 +162,13 @@ pub struct RadiositySettings {
     pub bins: u32,
     /// Light bounces: 1 is light reflected once (the GI lights' and emitters' light gathered once); each
     /// more adds one more reflection. Range 1–16; default 8 (low 4, high 16): the second room of
-    /// `cellar`, lit through a door, is 0.61 block RMSE with 4 and 0.34 with 8; `cornell` 0.156 and
-    /// 0.150. Cost: one gather over all bins of all elements per bounce (a few percent of a solve), and
+    /// `cellar`, lit through a door, is 0.57 block RMSE with 4 and 0.27 with 8; `cornell` 0.145 and
+    /// 0.159. Cost: one gather over all bins of all elements per bounce (a few percent of a solve), and
     /// only when the lighting changes.
     pub bounces: u32,
-    /// Stop bouncing when a bounce adds less than this fraction of the gathered light. Range 0–1;
-    /// default 0.01. Cost: none; it saves bounces.
+    /// Stop bouncing when the bounces still to come would add less than this fraction of the light
+    /// (each lit element's relative change in the last bounce, averaged, and continued geometrically by
+    /// the ratio of the last two bounces). Range 0–1; default 0.01. Cost: none; it saves bounces.
     pub stop_threshold: f32,
     /// A node is subdivided when its solid angle exceeds this many bin solid angles (§4.2.2). Range
     /// 0.05–8; default 1 (the paper's rule). Lower: finer links, fewer light leaks, more links. Cost:
@@ -165,8 +183,9 @@ pub struct RadiositySettings {
     /// How a link's sender contributes. Default [`LinkTransfer::BinSolidAngle`] (`ElementArea`, Eq. 5
     /// as printed, loses half of `cornell`'s light). No difference in cost worth measuring.
     pub transfer: LinkTransfer,
-    /// Radiance of a constant sky seen through empty bins, linear RGB in cd/m² (before exposure).
-    /// Default black (no sky). Each component 0–10⁶. Cost: none (empty bins are visited anyway).
+    /// Radiance of a constant sky seen through empty bins, linear RGB in cd/m² (before exposure), added
+    /// to the camera's `EnvironmentMapLight` where it has one. Default black (no sky). Each component
+    /// 0–10⁶. Cost: none (empty bins are visited anyway).
     pub sky: Vec3,
     /// Multiplies the indirect light. Range 0–1000; default 1. Cost: none.
     pub intensity: f32,
@@ -303,7 +322,41 @@ struct LightingKey {
     lights: u64,
     gi_lights: Vec<Entity>,
     exposure: u32,
+    environment: u64,
     settings: RadiositySettings,
+}
+
+/// `light` with its diffuse map replaced by a black one, for a radiosity camera: Bevy then adds only the
+/// environment's specular reflections, and radiosity its diffuse light with occlusion (a room lit through
+/// a window gets the sky's light where the window lets it in, not everywhere). Radiosity reads the
+/// specular map, whose image must keep its CPU data (the default `RenderAssetUsages` of loaded images).
+///
+/// ```no_run
+/// # use bevy::prelude::*;
+/// # use bevy::light::EnvironmentMapLight;
+/// # use bevy_diffuse_gi::prelude::*;
+/// # fn setup(mut commands: Commands, mut images: ResMut<Assets<Image>>, assets: Res<AssetServer>) {
+/// let sky = assets.load("sky_specular_rgb9e5.ktx2");
+/// let light = EnvironmentMapLight { diffuse_map: sky.clone(), specular_map: sky, intensity: 1000.0, ..default() };
+/// commands.spawn((
+///     Camera3d::default(),
+///     DiffuseGi { method: GiMethod::Radiosity, ..default() },
+///     bevy_diffuse_gi::radiosity::occluded_environment(&light, &mut images),
+/// ));
+/// # }
+/// ```
+pub fn occluded_environment(light: &bevy::light::EnvironmentMapLight, images: &mut Assets<Image>) -> bevy::light::EnvironmentMapLight {
+    use bevy::asset::RenderAssetUsages;
+    use bevy::render::render_resource::{Extent3d, TextureDimension, TextureFormat, TextureViewDescriptor, TextureViewDimension};
+    let mut black = Image::new_fill(
+        Extent3d { width: 1, height: 1, depth_or_array_layers: 6 },
+        TextureDimension::D2,
+        &[0; 8],
+        TextureFormat::Rgba16Float,
+        RenderAssetUsages::RENDER_WORLD,
+    );
+    black.texture_view_descriptor = Some(TextureViewDescriptor { dimension: Some(TextureViewDimension::Cube), ..default() });
+    bevy::light::EnvironmentMapLight { diffuse_map: images.add(black), ..light.clone() }
 }
 
 /// Main-thread milliseconds of the solve's stages, in Bevy's diagnostics (a measurement per solve).
@@ -524,6 +577,7 @@ fn update_radiosity(
         lights: snapshot.light_generation,
         gi_lights: lights,
         exposure: exposure.to_bits(),
+        environment: snapshot.environment_generation,
         settings: settings.clone(),
     });
     if state.lighting_key == lighting_key {
@@ -531,6 +585,15 @@ fn update_radiosity(
         return;
     }
     let start = std::time::Instant::now();
+    state.solver.environment = match (snapshot.environment.as_deref(), state.solver.bins.as_ref()) {
+        // The camera's environment map (plus the constant sky), averaged over each world-aligned bin
+        // with about two samples per environment texel across a bin.
+        (Some(environment), Some(bins)) => {
+            let samples = (2 * environment.face_size()).div_ceil(bins.n).clamp(2, 16);
+            bins.average(samples, |d| environment.radiance(d) + settings.sky)
+        }
+        _ => Vec::new(),
+    };
     let direct = direct_irradiance(&snapshot, &state.solver.elements, &lighting_key.as_ref().unwrap().gi_lights);
     state.solver.illuminate(&direct, &params);
     times.illumination_ms = start.elapsed().as_secs_f32() * 1e3;
@@ -608,6 +671,7 @@ fn move_instances(state: &mut RadiosityState, snapshot: &SceneSnapshot) -> bool 
 #[cfg(test)]
 mod tests {
     use super::*;
+
 
     #[test]
     fn presets_are_valid_and_grow_in_cost() {
