@@ -132,7 +132,8 @@ fn vpl_count(scene: &StandardScene, settings: &VplSettings) -> usize {
         | StandardScene::Dynamic
         | StandardScene::EmissivePanel
         | StandardScene::OpenField
-        | StandardScene::NearLight => return 0,
+        | StandardScene::NearLight
+        | StandardScene::SkyRoom => return 0,
     };
     let lights: Vec<_> = snapshot.lights.iter().map(|l| l.light).collect();
     let guides: Vec<_> = lights.iter().map(|l| EmissionGuide::from_pilots(&pilot_hits(&snapshot, l), &[camera])).collect();

@@ -183,7 +183,7 @@ impl Default for HeadlessOptions {
 /// combinations. Tools that add flags of their own flatten it (`ground_truth`).
 #[derive(clap::Args, Clone, Debug)]
 pub struct HeadlessArgs {
-    /// cornell, cellar, sponza_like, dynamic, emissive_panel, open_field, near_light, or a glTF 2.0 file
+    /// cornell, cellar, sponza_like, dynamic, emissive_panel, open_field, near_light, sky_room, or a glTF 2.0 file
     #[arg(long, value_name = "NAME|PATH.glb", default_value = "cornell", value_parser = StandardScene::parse)]
     pub scene: StandardScene,
     /// Image size in pixels, 1..=8192 each

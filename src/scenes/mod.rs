@@ -8,6 +8,8 @@
 //! * [`StandardScene::EmissivePanel`]: the Cornell box lit only by a glowing ceiling panel
 //!   (`emissive_panel.rs`).
 //! * [`StandardScene::OpenField`]: a 60 m sunlit field with a few buildings (`open_field.rs`).
+//! * [`StandardScene::SkyRoom`]: an 8 m room lit only by an environment map, through a roof opening
+//!   and a door (`sky_room.rs`).
 //! * [`StandardScene::NearLight`]: `cornell` with a block hung just below the light (`near_light.rs`).
 //! * [`StandardScene::Dynamic`]: a room with ten moving objects and an orbiting light (`dynamic.rs`).
 //! * [`StandardScene::Gltf`]: any glTF 2.0 file, loaded through Bevy's glTF loader (meshes,
@@ -25,6 +27,7 @@ pub mod dynamic;
 pub mod emissive_panel;
 pub mod near_light;
 pub mod open_field;
+pub mod sky_room;
 pub mod sponza_like;
 
 use std::path::{Path, PathBuf};
@@ -44,6 +47,7 @@ pub use dynamic::{DYNAMIC_EV100, DynamicScene, dynamic_pose, spawn_dynamic};
 pub use emissive_panel::{EMISSIVE_PANEL_EV100, spawn_emissive_panel};
 pub use near_light::{NEAR_LIGHT_EV100, spawn_near_light};
 pub use open_field::{OPEN_FIELD_EV100, spawn_open_field};
+pub use sky_room::{SKY_ROOM_EV100, sky_room_snapshot, spawn_sky_room};
 pub use sponza_like::{SPONZA_EV100, spawn_sponza_like, sponza_like_snapshot};
 
 /// A scene the crate knows how to build.
@@ -66,6 +70,9 @@ pub enum StandardScene {
     /// `cornell` with a white block hung just below the spot light: most of the light's map shows a
     /// small, brightly lit surface (Fig. 7 of the Direct Radiance Mapping paper).
     NearLight,
+    /// An 8 × 6 × 3 m room lit only by the sky (an `EnvironmentMapLight`) through a roof opening and a
+    /// door.
+    SkyRoom,
     /// A glTF 2.0 file (`.glb` or `.gltf`).
     Gltf(PathBuf),
 }
@@ -73,7 +80,7 @@ pub enum StandardScene {
 impl StandardScene {
     /// Names accepted by [`StandardScene::parse`] besides file paths.
     pub const NAMES: &'static [&'static str] =
-        &["cornell", "cellar", "sponza_like", "dynamic", "emissive_panel", "open_field", "near_light"];
+        &["cornell", "cellar", "sponza_like", "dynamic", "emissive_panel", "open_field", "near_light", "sky_room"];
 
     /// A scene name, or a path to a `.glb`/`.gltf` file (which must exist).
     pub fn parse(text: &str) -> Result<Self, String> {
@@ -85,6 +92,7 @@ impl StandardScene {
             "emissive_panel" => Ok(Self::EmissivePanel),
             "open_field" => Ok(Self::OpenField),
             "near_light" => Ok(Self::NearLight),
+            "sky_room" => Ok(Self::SkyRoom),
             path if path.ends_with(".glb") || path.ends_with(".gltf") => {
                 let p = Path::new(path);
                 if !p.is_file() {
@@ -109,6 +117,7 @@ impl StandardScene {
             Self::EmissivePanel => "emissive_panel".into(),
             Self::OpenField => "open_field".into(),
             Self::NearLight => "near_light".into(),
+            Self::SkyRoom => "sky_room".into(),
             Self::Gltf(path) => path.display().to_string(),
         }
     }
@@ -275,6 +284,10 @@ pub fn spawn_standard_scene(
         }
         StandardScene::NearLight => {
             spawn_near_light(commands, meshes, materials, ev100.unwrap_or(NEAR_LIGHT_EV100));
+            commands.insert_resource(SceneStatus::Ready);
+        }
+        StandardScene::SkyRoom => {
+            spawn_sky_room(commands, meshes, materials, ev100.unwrap_or(SKY_ROOM_EV100));
             commands.insert_resource(SceneStatus::Ready);
         }
         StandardScene::Gltf(path) => {
