@@ -128,6 +128,7 @@ fn accuracy(device: &mut String) -> Result<String, String> {
         (StandardScene::EmissivePanel, "emissive_panel"),
         (StandardScene::Dynamic, "dynamic"),
         (StandardScene::OpenField, "open_field"),
+        (StandardScene::SkyRoom, "sky_room"),
     ];
     for (scene, name) in scenes {
         let reference = truth(name)?;
@@ -137,10 +138,17 @@ fn accuracy(device: &mut String) -> Result<String, String> {
             ("high (6×20×20, 16 bounces)".into(), RadiositySettings::HIGH),
             ("medium, 4 bounces".into(), RadiositySettings { bounces: 4, ..RadiositySettings::MEDIUM }),
         ];
-        if name == "cornell" {
+        // Bin resolution and bounce count on the issue's three scenes (the bounces against the full truth:
+        // what a bounce count leaves out).
+        if ["cornell", "cellar", "sky_room"].contains(&name) {
             for bins in [8, 12] {
                 configs.push((format!("medium, 6×{bins}×{bins}"), RadiositySettings { bins, ..RadiositySettings::MEDIUM }));
             }
+            for bounces in [1, 2] {
+                configs.push((format!("medium, {bounces} bounce{}", if bounces == 1 { "" } else { "s" }), RadiositySettings { bounces, ..RadiositySettings::MEDIUM }));
+            }
+        }
+        if name == "cornell" {
             configs.push((
                 "medium, Eq. 5 with the element's area".into(),
                 RadiositySettings { transfer: bevy_diffuse_gi::radiosity::LinkTransfer::ElementArea, ..RadiositySettings::MEDIUM },
@@ -197,18 +205,19 @@ fn stages(device: &mut String) -> Result<String, String> {
 }
 
 /// Time per stage against the element count (element size from 1/8 to 1/64 of the scene), with the
-/// slope of a least-squares line through log(time) against log(elements): about 1 for O(N log N).
+/// slope of a least-squares line through log(time) against log(elements): about 1 for O(N log N). Also
+/// draws the points on a log-log plot, `docs/images/radiosity_scaling.svg`.
 fn scaling(device: &mut String) -> Result<String, String> {
     let mut out = String::from(
         "`cornell`, 6×12×12 bins, one bounce, element size from 1/8 to 1/64 of the scene's diagonal.\n\n\
-         | element size | elements | create links ms | refine & push ms | illumination ms |\n|---|---|---|---|---|\n",
+         | element size | elements | update elements ms | create links ms | refine & push ms | illumination ms |\n|---|---|---|---|---|---|\n",
     );
     let mut points: Vec<(f64, [f64; 4])> = Vec::new();
     for divisions in [8.0f32, 12.0, 16.0, 24.0, 32.0, 48.0, 64.0] {
         let settings = RadiositySettings { bins: 12, bounces: 1, element_size: 1.0 / divisions, ..RadiositySettings::MEDIUM };
         let report = render(device, &options(StandardScene::Cornell, settings))?;
         let (elements, _, t, _) = solve(&report);
-        out += &format!("| 1/{divisions} | {elements} | {:.1} | {:.1} | {:.1} |\n", t[1], t[2], t[3]);
+        out += &format!("| 1/{divisions} | {elements} | {:.1} | {:.1} | {:.1} | {:.1} |\n", t[0], t[1], t[2], t[3]);
         points.push((elements as f64, t));
     }
     let slope = |stage: usize| {
@@ -218,13 +227,58 @@ fn scaling(device: &mut String) -> Result<String, String> {
         pts.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum::<f64>() / pts.iter().map(|p| (p.0 - mx).powi(2)).sum::<f64>()
     };
     out += &format!(
-        "\nLog-log slopes (time ∝ elements^s; O(N log N) over this range is about 1.1): create links {:.2}, refine & push {:.2}, \
-         illumination {:.2}.\n",
+        "\nLog-log slopes (time ∝ elements^s; O(N log N) over this range is about 1.1): update elements {:.2}, create links {:.2}, \
+         refine & push {:.2}, illumination {:.2}.\n",
+        slope(0),
         slope(1),
         slope(2),
         slope(3)
     );
+    let plot = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("docs/images/radiosity_scaling.svg");
+    plot_scaling(&plot, &points).map_err(|e| format!("{}: {e}", plot.display()))?;
+    out += "\n![Time per stage against elements, log-log](images/radiosity_scaling.svg)\n";
     Ok(out)
+}
+
+/// The stage times against the element count on log-log axes, with an `N log N` guide through the
+/// first point of the slowest stage.
+fn plot_scaling(path: &std::path::Path, points: &[(f64, [f64; 4])]) -> Result<(), Box<dyn std::error::Error>> {
+    use plotters::prelude::*;
+    let root = SVGBackend::new(path, (720, 480)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let positive = || points.iter().flat_map(|p| p.1).filter(|t| *t > 0.0);
+    let (t_min, t_max) = (positive().fold(f64::INFINITY, f64::min), positive().fold(0.0, f64::max));
+    let (n_min, n_max) = (points.iter().map(|p| p.0).fold(f64::INFINITY, f64::min), points.iter().map(|p| p.0).fold(0.0, f64::max));
+    let mut chart = ChartBuilder::on(&root)
+        .caption("Radiosity solve on cornell: time per stage (6×12×12 bins)", ("sans-serif", 20))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d((n_min * 0.8..n_max * 1.25).log_scale(), (t_min * 0.5..t_max * 2.0).log_scale())?;
+    chart.configure_mesh().x_desc("elements").y_desc("ms (wall clock, CPU)").draw()?;
+    let stages = ["update elements", "create links", "refine & push", "illumination"];
+    let colours = [RGBColor(80, 80, 80), RGBColor(200, 60, 40), RGBColor(40, 110, 200), RGBColor(40, 160, 70)];
+    for (stage, (name, colour)) in stages.iter().zip(colours).enumerate() {
+        let series: Vec<(f64, f64)> = points.iter().filter(|p| p.1[stage] > 0.0).map(|p| (p.0, p.1[stage])).collect();
+        chart
+            .draw_series(LineSeries::new(series.clone(), colour.stroke_width(2)))?
+            .label(*name)
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour.stroke_width(2)));
+        chart.draw_series(series.iter().map(|p| Circle::new(*p, 3, colour.filled())))?;
+    }
+    // N log N through the first point of create links (the dominant stage).
+    if let Some(first) = points.iter().find(|p| p.1[1] > 0.0) {
+        let (n0, t0) = (first.0, first.1[1]);
+        let guide: Vec<(f64, f64)> =
+            points.iter().map(|p| (p.0, t0 * (p.0 * p.0.ln()) / (n0 * n0.ln()))).collect();
+        chart
+            .draw_series(LineSeries::new(guide, BLACK.mix(0.4).stroke_width(1)))?
+            .label("N log N")
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], BLACK.mix(0.4)));
+    }
+    chart.configure_series_labels().background_style(WHITE.mix(0.9)).border_style(BLACK).position(SeriesLabelPosition::UpperLeft).draw()?;
+    root.present()?;
+    Ok(())
 }
 
 /// The leak of coarse tessellation (the paper's Fig. 10d): the meshes' own vertices against cut
