@@ -136,3 +136,85 @@ fn the_sky_of_an_environment_map_lights_a_room_through_its_openings() {
     let theirs = lit.mean(test, &truth)[1] / shade.mean(test, &truth)[1];
     check(test, (ours / theirs - 1.0).abs() < 0.33, &image, Some(&truth), format!("contrast {ours:.2} against the truth's {theirs:.2}"));
 }
+
+/// Bevy's skybox samples a cube map as its environment lighting does (the same z flip). A cube map whose
+/// texels say which face, row and column they are drawn as `sky_room`'s skybox must show, through the
+/// roof opening, what `scene::Environment`'s lookup (which radiosity and the tracer use) gives for each
+/// pixel's ray: the face and texel order the CPU reads is the one Bevy samples.
+#[test]
+fn bevy_shows_the_sky_where_the_cpu_looks_it_up() {
+    use bevy::asset::RenderAssetUsages;
+    use bevy::prelude::*;
+    use bevy::render::render_resource::{Extent3d, TextureDimension, TextureFormat, TextureViewDescriptor, TextureViewDimension};
+    use bevy_diffuse_gi::reference::{CameraProjection, ReferenceCamera};
+    use bevy_diffuse_gi::scene::Environment;
+    use bevy_diffuse_gi::scenes::sky_room;
+    let test = "environment_orientation";
+    const N: u32 = 16;
+    fn labelled() -> Image {
+        let mut data = Vec::new();
+        for face in 0..6u32 {
+            for y in 0..N {
+                for x in 0..N {
+                    let texel = [1000.0 * (face + 1) as f32 + 150.0 * x as f32, 300.0 + 200.0 * y as f32, 500.0, 1.0];
+                    texel.iter().for_each(|c: &f32| data.extend_from_slice(&c.to_le_bytes()));
+                }
+            }
+        }
+        let mut image = Image::new(
+            Extent3d { width: N, height: N, depth_or_array_layers: 6 },
+            TextureDimension::D2,
+            data,
+            TextureFormat::Rgba32Float,
+            RenderAssetUsages::default(),
+        );
+        image.texture_view_descriptor = Some(TextureViewDescriptor { dimension: Some(TextureViewDimension::Cube), ..default() });
+        image
+    }
+    fn add_skybox(mut commands: Commands, mut images: ResMut<Assets<Image>>, cameras: Query<Entity, (With<Camera3d>, Without<bevy::light::Skybox>)>) {
+        for camera in &cameras {
+            commands.entity(camera).insert(bevy::light::Skybox { image: Some(images.add(labelled())), brightness: 1.0, ..default() });
+        }
+    }
+    let options = HeadlessOptions { scene: StandardScene::SkyRoom, frames: 3, ..Default::default() };
+    let report = {
+        let _guard = common::render_lock();
+        bevy_diffuse_gi::headless::run_with(&options, |app| {
+            app.add_systems(Update, add_skybox);
+        })
+        .expect("headless render")
+    };
+    let image = report.image;
+    let transform = Transform::from_translation(sky_room::CAMERA_POSITION).looking_at(sky_room::CAMERA_TARGET, Vec3::Y);
+    let camera = ReferenceCamera {
+        position: sky_room::CAMERA_POSITION,
+        rotation: transform.rotation,
+        projection: CameraProjection::Perspective { fov_y: 70f32.to_radians() },
+        exposure: bevy::camera::Exposure { ev100: sky_room::SKY_ROOM_EV100 }.exposure(),
+    };
+    let snapshot = sky_room::sky_room_snapshot();
+    let environment = Environment::from_image(&labelled(), 1.0, Quat::IDENTITY).unwrap();
+    let mut ratios = Vec::new();
+    for y in 0..image.height {
+        for x in 0..image.width {
+            // Pixels whose ray leaves the room, well inside the opening (not on its edge).
+            let escapes = |dx: f32, dy: f32| {
+                let (o, d) = camera.ray(x as f32 + 0.5 + dx, y as f32 + 0.5 + dy, image.width, image.height);
+                snapshot.intersect(o, d, 0.0, f32::INFINITY).is_none()
+            };
+            if escapes(0.0, 0.0) && escapes(-1.5, 0.0) && escapes(1.5, 0.0) && escapes(0.0, -1.5) && escapes(0.0, 1.5) {
+                let (_, dir) = camera.ray(x as f32 + 0.5, y as f32 + 0.5, image.width, image.height);
+                let want = environment.radiance(dir) * camera.exposure;
+                let p = image.get(x, y);
+                ratios.push(p[0] / want.x);
+                ratios.push(p[1] / want.y);
+            }
+        }
+    }
+    ratios.sort_by(f32::total_cmp);
+    check(test, ratios.len() > 400, &image, None, format!("only {} sky pixels", ratios.len() / 2));
+    let (low, high) = (ratios[ratios.len() / 20], ratios[ratios.len() * 19 / 20]);
+    eprintln!("{test}: {} sky pixels, ratio 5th–95th percentile {low:.3}–{high:.3}", ratios.len() / 2);
+    // Another face is 1000 (a sixth or more) off in red; a mirrored row or column up to 2000 in one of them.
+    check(test, low > 0.95 && high < 1.05, &image, None, format!("Bevy's sky over the CPU's: 5th–95th percentile {low:.3}–{high:.3}"));
+}
