@@ -346,16 +346,7 @@ struct LightingKey {
 /// # }
 /// ```
 pub fn occluded_environment(light: &bevy::light::EnvironmentMapLight, images: &mut Assets<Image>) -> bevy::light::EnvironmentMapLight {
-    use bevy::asset::RenderAssetUsages;
-    use bevy::render::render_resource::{Extent3d, TextureDimension, TextureFormat, TextureViewDescriptor, TextureViewDimension};
-    let mut black = Image::new_fill(
-        Extent3d { width: 1, height: 1, depth_or_array_layers: 6 },
-        TextureDimension::D2,
-        &[0; 8],
-        TextureFormat::Rgba16Float,
-        RenderAssetUsages::RENDER_WORLD,
-    );
-    black.texture_view_descriptor = Some(TextureViewDescriptor { dimension: Some(TextureViewDimension::Cube), ..default() });
+    let black = crate::scene::environment::cube_image(1, bevy::asset::RenderAssetUsages::RENDER_WORLD, |_| Vec3::ZERO);
     bevy::light::EnvironmentMapLight { diffuse_map: images.add(black), ..light.clone() }
 }
 

@@ -17,9 +17,52 @@
 //! as `EnvironmentMapLight::hemispherical_gradient` makes them, once the renderer has taken them) are an
 //! error that names the reason.
 
+use bevy::asset::RenderAssetUsages;
 use bevy::image::Image;
 use bevy::math::{Quat, Vec2, Vec3};
-use bevy::render::render_resource::{TextureDataOrder, TextureFormat};
+use bevy::render::render_resource::{
+    Extent3d, TextureDataOrder, TextureDimension, TextureFormat, TextureViewDescriptor, TextureViewDimension,
+};
+
+/// A cube-map image (`Rgba32Float`, `size²` texels per face, viewed as a cube) whose texels hold
+/// `radiance` of the world direction through their centre, as Bevy samples them (no rotation): the
+/// inverse of [`Environment::radiance`]'s lookup. For environment maps made in code; `usage` without
+/// `MAIN_WORLD` leaves the GI nothing to read once the renderer has the image.
+pub fn cube_image(size: u32, usage: RenderAssetUsages, radiance: impl Fn(Vec3) -> Vec3) -> Image {
+    let n = size.max(1);
+    let mut data = Vec::with_capacity((6 * n * n * 16) as usize);
+    for face in 0..6 {
+        for y in 0..n {
+            for x in 0..n {
+                let s = 2.0 * (x as f32 + 0.5) / n as f32 - 1.0;
+                let t = 2.0 * (y as f32 + 0.5) / n as f32 - 1.0;
+                // Cube-map space direction of the texel (Vulkan's face rules inverted) ...
+                let c = match face {
+                    0 => Vec3::new(1.0, -t, -s),
+                    1 => Vec3::new(-1.0, -t, s),
+                    2 => Vec3::new(s, 1.0, t),
+                    3 => Vec3::new(s, -1.0, -t),
+                    4 => Vec3::new(s, -t, 1.0),
+                    _ => Vec3::new(-s, -t, -1.0),
+                };
+                // ... and in the world, where Bevy negates z before the lookup.
+                let r = radiance(Vec3::new(c.x, c.y, -c.z).normalize());
+                for v in [r.x, r.y, r.z, 1.0] {
+                    data.extend_from_slice(&v.to_le_bytes());
+                }
+            }
+        }
+    }
+    let mut image = Image::new(
+        Extent3d { width: n, height: n, depth_or_array_layers: 6 },
+        TextureDimension::D2,
+        data,
+        TextureFormat::Rgba32Float,
+        usage,
+    );
+    image.texture_view_descriptor = Some(TextureViewDescriptor { dimension: Some(TextureViewDimension::Cube), ..Default::default() });
+    image
+}
 
 /// Radiance around the scene, per direction.
 #[derive(Clone, Debug, PartialEq)]
@@ -230,8 +273,6 @@ fn decoder(format: TextureFormat) -> Option<fn(&[u8]) -> Vec3> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use bevy::asset::RenderAssetUsages;
-    use bevy::render::render_resource::{Extent3d, TextureDimension};
 
     /// A 2² cube map whose every face has its own colour (face index + 1 in red) in `Rgba32Float`.
     fn labelled_faces() -> Image {

@@ -14,7 +14,6 @@
 use bevy::asset::RenderAssetUsages;
 use bevy::light::EnvironmentMapLight;
 use bevy::prelude::*;
-use bevy::render::render_resource::{Extent3d, TextureDimension, TextureFormat, TextureViewDescriptor, TextureViewDimension};
 
 use super::cellar::{BLUE, FLOOR, RED, WALL};
 
@@ -69,39 +68,7 @@ pub fn sky_radiance(d: Vec3) -> Vec3 {
 /// The sky as a cube-map image (`Rgba32Float`, [`SKY_FACE`]² per face, CPU data kept so that the GI and
 /// the tracer can read it), in the face and texel order Bevy samples (see [`crate::scene::Environment`]).
 pub fn sky_image() -> Image {
-    let n = SKY_FACE;
-    let mut data = Vec::with_capacity((6 * n * n * 16) as usize);
-    for face in 0..6 {
-        for y in 0..n {
-            for x in 0..n {
-                let s = 2.0 * (x as f32 + 0.5) / n as f32 - 1.0;
-                let t = 2.0 * (y as f32 + 0.5) / n as f32 - 1.0;
-                // Cube-map space direction of the texel (Vulkan's face rules inverted) ...
-                let c = match face {
-                    0 => Vec3::new(1.0, -t, -s),
-                    1 => Vec3::new(-1.0, -t, s),
-                    2 => Vec3::new(s, 1.0, t),
-                    3 => Vec3::new(s, -1.0, -t),
-                    4 => Vec3::new(s, -t, 1.0),
-                    _ => Vec3::new(-s, -t, -1.0),
-                };
-                // ... and in the world, where Bevy negates z before the lookup.
-                let radiance = sky_radiance(Vec3::new(c.x, c.y, -c.z));
-                for v in [radiance.x, radiance.y, radiance.z, 1.0] {
-                    data.extend_from_slice(&v.to_le_bytes());
-                }
-            }
-        }
-    }
-    let mut image = Image::new(
-        Extent3d { width: n, height: n, depth_or_array_layers: 6 },
-        TextureDimension::D2,
-        data,
-        TextureFormat::Rgba32Float,
-        RenderAssetUsages::default(),
-    );
-    image.texture_view_descriptor = Some(TextureViewDescriptor { dimension: Some(TextureViewDimension::Cube), ..default() });
-    image
+    crate::scene::environment::cube_image(SKY_FACE, RenderAssetUsages::default(), sky_radiance)
 }
 
 /// Spawns the room and the [`SceneCamera`](super::SceneCamera) with the sky's `EnvironmentMapLight`.
