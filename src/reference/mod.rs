@@ -322,6 +322,13 @@ pub fn incident_radiance(
     [sum.emission / n, sum.direct / n, sum.indirect / n]
 }
 
+/// The [`PixelSum`] class of light from an emissive surface or the environment after `reflecting`
+/// reflections: light reflected once is not Bevy's direct light (see the module docs), so it joins the
+/// indirect class.
+fn source_class(reflecting: u32) -> u32 {
+    if reflecting == 1 { 2 } else { reflecting }
+}
+
 /// Normals at a hit facing the side the ray came from.
 fn facing_normals(surface: &SurfacePoint, incoming: Vec3) -> (Vec3, Vec3) {
     let ng = if surface.geometric_normal.dot(incoming) > 0.0 {
@@ -387,9 +394,7 @@ fn trace_path_from(
         // Emission at this vertex has been reflected by the `depth − 1` vertices before it.
         let emission = surface.material.emission(exposure);
         if emission != Vec3::ZERO && depth - 1 <= max_reflecting {
-            // Emission reflected once is not Bevy's direct light (see the module docs): indirect bin.
-            let bin = if depth == 2 { 2 } else { depth - 1 };
-            sum.add(bin, throughput * emission);
+            sum.add(source_class(depth - 1), throughput * emission);
         }
 
         let p = surface.position + ng * epsilon;
@@ -438,11 +443,9 @@ fn trace_path_from(
             return;
         }
         let Some(next_hit) = scene.intersect(p, next, 0.0, f32::INFINITY) else {
-            // The path escaped: the environment's light, reflected by the `depth` vertices so far (once: the
-            // GI's light, binned as indirect like emission reflected once).
+            // The path escaped: the environment's light, reflected by the `depth` vertices so far.
             if let Some(environment) = scene.environment.as_deref() {
-                let bin = if depth == 1 { 2 } else { depth };
-                sum.add(bin, throughput * environment.radiance(next));
+                sum.add(source_class(depth), throughput * environment.radiance(next));
             }
             return;
         };
