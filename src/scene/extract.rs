@@ -669,7 +669,8 @@ fn update_snapshot_environment(
     let modified = key.is_some_and(|(id, ..)| {
         events.read().any(|e| matches!(e, AssetEvent::Modified { id: m } | AssetEvent::LoadedWithDependencies { id: m } if *m == id))
     });
-    if key == *read && !modified {
+    // A new snapshot starts without an environment, whatever this system read into the last one.
+    if key == *read && !modified && !snapshot.is_added() {
         return;
     }
     let Some(light) = light else {
