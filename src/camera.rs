@@ -109,6 +109,12 @@ pub enum GiMethod {
     /// the CPU; no reflective shadow map and no volume, and emissive meshes light the scene. Settings:
     /// [`RadiositySettings`](crate::radiosity::RadiositySettings) on the camera.
     Radiosity,
+    /// The photon grid and SH field (Chang, Park & Ihm): photons from every light, four reflections
+    /// deep, accumulated on the faces of a grid, turned into spherical harmonics of the incoming light
+    /// near the surfaces and gathered per pixel; prepared on the CPU, no reflective shadow map and no
+    /// volume; emissive meshes and the environment map light the scene. Settings:
+    /// [`PhotonGridSettings`](crate::photon_grid::PhotonGridSettings) on the camera.
+    PhotonGrid,
 }
 
 impl serde::Serialize for GiMethod {
@@ -119,7 +125,8 @@ impl serde::Serialize for GiMethod {
 
 impl GiMethod {
     /// Every method, for menus.
-    pub const ALL: [GiMethod; 5] = [GiMethod::RadianceHints, GiMethod::Vpl, GiMethod::RsmGather, GiMethod::Drm, GiMethod::Radiosity];
+    pub const ALL: [GiMethod; 6] =
+        [GiMethod::RadianceHints, GiMethod::Vpl, GiMethod::RsmGather, GiMethod::Drm, GiMethod::Radiosity, GiMethod::PhotonGrid];
 
     /// Short name, as the headless renderer's `--method` spells it.
     pub const fn name(self) -> &'static str {
@@ -129,6 +136,7 @@ impl GiMethod {
             GiMethod::RsmGather => "rsm",
             GiMethod::Drm => "drm",
             GiMethod::Radiosity => "radiosity",
+            GiMethod::PhotonGrid => "photon-grid",
         }
     }
 

@@ -37,6 +37,7 @@ pub mod hdr_image;
 pub mod headless;
 pub mod light;
 pub mod metrics;
+pub mod photon_grid;
 pub mod radiance_hints;
 pub mod radiosity;
 #[cfg(feature = "reference")]
@@ -68,6 +69,7 @@ pub mod prelude {
     pub use crate::rsm_gather::{RsmGatherSettings, RsmSampleWeights};
     pub use crate::drm::{DrmSettings, DrmSolidAngle};
     pub use crate::radiosity::{LinkTransfer, RadiositySettings};
+    pub use crate::photon_grid::PhotonGridSettings;
     #[cfg(feature = "egui")]
     pub use crate::ui::{DiffuseGiInspector, DiffuseGiInspectorPlugin};
 }
@@ -117,6 +119,7 @@ impl Plugin for DiffuseGiPlugin {
             rsm_gather::RsmGatherPlugin,
             drm::DrmPlugin,
             radiosity::RadiosityPlugin,
+            photon_grid::PhotonGridPlugin,
         ));
     }
 
@@ -164,11 +167,13 @@ pub struct MainThreadCost {
     pub vpl_ms: f32,
     /// The radiosity solve (elements, links, illumination; only what changed).
     pub radiosity_ms: f32,
+    /// The photon grid's preparation (voxels, photons, R-grid, SH field; only when its inputs change).
+    pub photon_grid_ms: f32,
 }
 
 impl MainThreadCost {
     pub fn total_ms(&self) -> f32 {
-        self.snapshot_ms + self.voxels_ms + self.vpl_ms + self.radiosity_ms
+        self.snapshot_ms + self.voxels_ms + self.vpl_ms + self.radiosity_ms + self.photon_grid_ms
     }
 }
 

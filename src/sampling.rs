@@ -85,6 +85,19 @@ pub fn uniform_sphere(u: Vec2) -> Vec3 {
     Vec3::new(r * phi.cos(), r * phi.sin(), z)
 }
 
+/// Point `i` of `n` of the spherical Fibonacci lattice: unit directions spread evenly over the sphere
+/// (each stands for the solid angle `4π / n`), the same set for the same `n`.
+#[inline]
+pub fn fibonacci_sphere(i: u32, n: u32) -> Vec3 {
+    // The golden angle, 2π (1 − 1/φ).
+    const GOLDEN_ANGLE: f32 = 2.399_963_3;
+    let n = n.max(1);
+    let z = 1.0 - (2.0 * i as f32 + 1.0) / n as f32;
+    let r = (1.0 - z * z).max(0.0).sqrt();
+    let phi = GOLDEN_ANGLE * i as f32;
+    Vec3::new(r * phi.cos(), r * phi.sin(), z)
+}
+
 /// A uniform point in the unit ball from three uniforms.
 #[inline]
 pub fn uniform_ball(u: Vec3) -> Vec3 {

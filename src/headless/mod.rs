@@ -345,7 +345,7 @@ fn attach_camera(
                 ..default()
             });
             // Every method's settings: a camera uses only its method's (and `--switch-method` finds them).
-            commands.entity(entity).insert((o.vpl.clone(), o.rsm_gather.clone(), o.drm.clone(), o.radiosity.clone()));
+            commands.entity(entity).insert((o.vpl.clone(), o.rsm_gather.clone(), o.drm.clone(), o.radiosity.clone(), o.photon_grid.clone()));
             if let Some((levels, extent)) = o.rh_cascade {
                 let rh = RadianceHintsVolume { sizing: crate::radiance_hints::GridSizing::Fixed, ..o.rh.clone() };
                 let defaults = crate::radiance_hints::RadianceHintsCascade::default();
@@ -406,6 +406,7 @@ fn drive(
     dynamic: Option<Res<crate::scenes::DynamicScene>>,
     snapshot_timings: Res<crate::scene::SnapshotTimings>,
     radiosity: Res<crate::radiosity::RadiosityActivity>,
+    photon_grid: Res<crate::photon_grid::PhotonGridActivity>,
 ) {
     let finish = |headless: &mut Headless, exit: &mut MessageWriter<AppExit>, error: Option<String>| {
         let failed = error.is_some();
@@ -531,6 +532,17 @@ fn drive(
                             "refine_push_ms": t.refine_push_ms, "illumination_ms": t.illumination_ms }),
                 );
             }
+            if headless.options.method == HeadlessMethod::Gi(crate::camera::GiMethod::PhotonGrid) {
+                let (a, t) = (&*photon_grid, &photon_grid.times);
+                map.insert(
+                    "photon_grid".into(),
+                    json!({ "dims": [a.dims.x, a.dims.y, a.dims.z], "boundary_sh_cells": a.boundary_sh_cells,
+                            "boundary_v_cells": a.boundary_v_cells, "probes": a.probes, "probes_inside": a.inside,
+                            "photons_stored": a.photons, "paths": a.stats.paths, "updates": a.updates,
+                            "voxelize_ms": t.voxelize_ms, "trace_ms": t.trace_ms, "rgrid_ms": t.rgrid_ms,
+                            "field_ms": t.field_ms }),
+                );
+            }
             let mut outcome = headless.outcome.lock().expect("outcome lock");
             if let Some(mut previous) = previous.filter(|p| p.width == image.width && p.height == image.height) {
                 if headless.options.indirect_only && headless.options.method == HeadlessMethod::None {
@@ -565,7 +577,7 @@ fn switch_method(
     for (entity, mut gi) in &mut cameras {
         gi.method = method;
         let o = &headless.options;
-        commands.entity(entity).insert((o.vpl.clone(), o.rsm_gather.clone(), o.drm.clone(), o.radiosity.clone()));
+        commands.entity(entity).insert((o.vpl.clone(), o.rsm_gather.clone(), o.drm.clone(), o.radiosity.clone(), o.photon_grid.clone()));
     }
 }
 

@@ -9,6 +9,7 @@ use crate::camera::{GiMethod, GiOutput};
 use crate::vpl::VplSettings;
 use crate::drm::{DrmSettings, DrmSolidAngle};
 use crate::radiosity::{LinkTransfer, RadiositySettings};
+use crate::photon_grid::PhotonGridSettings;
 use crate::rsm_gather::RsmGatherSettings;
 use crate::radiance_hints::{DepthOcclusion, GridSizing, IrradianceReconstruction, RadianceHintsVolume};
 use crate::scenes::StandardScene;
@@ -28,7 +29,7 @@ pub enum HeadlessMethod {
 
 impl HeadlessMethod {
     /// Every accepted `--method` value.
-    pub const NAMES: &'static [&'static str] = &["none", "reference", "rh", "vpl", "rsm", "drm", "radiosity"];
+    pub const NAMES: &'static [&'static str] = &["none", "reference", "rh", "vpl", "rsm", "drm", "radiosity", "photon-grid"];
 
     pub fn parse(text: &str) -> Result<Self, String> {
         match text {
@@ -109,6 +110,9 @@ pub struct HeadlessOptions {
     /// Radiosity settings (`--preset` and the `--radiosity-*` overrides), passed on unclamped.
     #[serde(skip)]
     pub radiosity: RadiositySettings,
+    /// Photon-grid settings (`--preset` and the `--photon-*` overrides), passed on unclamped.
+    #[serde(skip)]
+    pub photon_grid: PhotonGridSettings,
     /// Fit the hint counts to the scene's proportions (cubic cells), unless `--rh-resolution` was given.
     pub rh_fit_cells: bool,
     /// Radiance Hints: a camera-centred cascade of this many levels (`--rh-cascade N`, innermost box
@@ -162,6 +166,7 @@ impl Default for HeadlessOptions {
             rsm_gather: RsmGatherSettings::default(),
             drm: DrmSettings::default(),
             radiosity: RadiositySettings::default(),
+            photon_grid: PhotonGridSettings::default(),
             rh_fit_cells: true,
             rh_cascade: None,
             half_resolution: crate::camera::DiffuseGi::default().half_resolution,
@@ -197,7 +202,8 @@ pub struct HeadlessArgs {
     pub out: Option<PathBuf>,
     /// none = Bevy's direct light; reference = the CPU path tracer; rh = Radiance Hints over a volume
     /// fitted to the scene; vpl = VPLs with imperfect shadow maps and SSBC; rsm = the RSM gather;
-    /// drm = Direct Radiance Mapping; radiosity = implicit-visibility hierarchical radiosity
+    /// drm = Direct Radiance Mapping; radiosity = implicit-visibility hierarchical radiosity;
+    /// photon-grid = the photon grid and SH field
     #[arg(long, value_name = "METHOD", default_value = "none", value_parser = HeadlessMethod::parse)]
     pub method: HeadlessMethod,
     /// Write only the indirect light the method adds
@@ -221,8 +227,8 @@ pub struct HeadlessArgs {
     /// Path tracer: one ray through each pixel centre, no pixel filter (for the direct check)
     #[arg(long)]
     pub pixel_centers: bool,
-    /// The method's preset: RadianceHintsVolume, VplSettings, RsmGatherSettings, DrmSettings or
-    /// RadiositySettings
+    /// The method's preset: RadianceHintsVolume, VplSettings, RsmGatherSettings, DrmSettings,
+    /// RadiositySettings or PhotonGridSettings
     #[arg(long, value_name = "PRESET", default_value = "medium", value_parser = ["low", "medium", "high"])]
     pub preset: String,
     /// Compute the bounced light at half resolution (the default)
@@ -257,8 +263,8 @@ pub struct HeadlessArgs {
     /// dynamic scene: add about N static triangles (spheres along the back wall), 0..=5000000
     #[arg(long, value_name = "N", default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=5_000_000))]
     pub extra_triangles: u32,
-    /// After FRAMES of the --frames, switch the camera to the given GI method (rh, vpl, rsm, drm or
-    /// radiosity)
+    /// After FRAMES of the --frames, switch the camera to the given GI method (rh, vpl, rsm, drm,
+    /// radiosity or photon-grid)
     #[arg(long, value_name = "FRAMES:METHOD", value_parser = parse_switch)]
     pub switch_method: Option<(u32, GiMethod)>,
     // The methods' overrides last: each group's help heading then covers only its own flags.
@@ -270,6 +276,56 @@ pub struct HeadlessArgs {
     pub one_bounce: OneBounceArgs,
     #[command(flatten)]
     pub radiosity: RadiosityArgs,
+    #[command(flatten)]
+    pub photon_grid: PhotonGridArgs,
+}
+
+/// Photon-grid overrides of [`HeadlessArgs`] (each sets one `PhotonGridSettings` field after the preset).
+#[derive(clap::Args, Clone, Debug, Default)]
+#[command(next_help_heading = "Photon grid (--method photon-grid; each overrides one PhotonGridSettings field)")]
+pub struct PhotonGridArgs {
+    /// SH-grid cells along the scene's longest side
+    #[arg(long, value_name = "N")]
+    pub photon_resolution: Option<u32>,
+    /// Photons per update
+    #[arg(long, value_name = "N")]
+    pub photon_count: Option<u32>,
+    /// Stored reflections per photon path
+    #[arg(long, value_name = "N")]
+    pub photon_reflections: Option<u32>,
+    /// Ray directions per SH probe (N_sh)
+    #[arg(long, value_name = "N")]
+    pub photon_sh_directions: Option<u32>,
+    /// Gather directions N_d (0 = the exact integral)
+    #[arg(long, value_name = "N")]
+    pub photon_gather_samples: Option<u32>,
+    /// Extent of the gather's distance weight, SH cells
+    #[arg(long, value_name = "R")]
+    pub photon_r_max: Option<f32>,
+    /// Obscurance distance in metres (0 = off)
+    #[arg(long, value_name = "D")]
+    pub photon_obscurance: Option<f32>,
+}
+
+impl PhotonGridArgs {
+    fn apply(self, s: &mut PhotonGridSettings) {
+        let PhotonGridArgs {
+            photon_resolution,
+            photon_count,
+            photon_reflections,
+            photon_sh_directions,
+            photon_gather_samples,
+            photon_r_max,
+            photon_obscurance,
+        } = self;
+        s.resolution = photon_resolution.unwrap_or(s.resolution);
+        s.photons = photon_count.unwrap_or(s.photons);
+        s.max_reflections = photon_reflections.unwrap_or(s.max_reflections);
+        s.sh_directions = photon_sh_directions.unwrap_or(s.sh_directions);
+        s.gather_samples = photon_gather_samples.unwrap_or(s.gather_samples);
+        s.r_max = photon_r_max.unwrap_or(s.r_max);
+        s.obscurance_distance = photon_obscurance.unwrap_or(s.obscurance_distance);
+    }
 }
 
 /// Radiosity overrides of [`HeadlessArgs`] (each sets one `RadiositySettings` field after the preset).
@@ -546,6 +602,11 @@ impl HeadlessArgs {
             switch_method: self.switch_method,
             ..HeadlessOptions::default()
         };
+        o.photon_grid = match self.preset.as_str() {
+            "low" => PhotonGridSettings::LOW,
+            "high" => PhotonGridSettings::HIGH,
+            _ => PhotonGridSettings::MEDIUM,
+        };
         (o.rh, o.vpl, o.rsm_gather, o.drm, o.radiosity) = match self.preset.as_str() {
             "low" => (RadianceHintsVolume::LOW, VplSettings::LOW, RsmGatherSettings::LOW, DrmSettings::LOW, RadiositySettings::LOW),
             "high" => {
@@ -583,12 +644,13 @@ impl HeadlessArgs {
         self.vpl.apply(&mut o.vpl);
         self.one_bounce.apply(&mut o);
         self.radiosity.apply(&mut o.radiosity);
+        self.photon_grid.apply(&mut o.photon_grid);
 
         if o.switch_method.is_some_and(|(frames, _)| frames >= o.frames) {
             return Err("--switch-method: the switch must come before the last of --frames".into());
         }
         if o.switch_method.is_some() && o.method.gi().is_none() {
-            return Err("--switch-method: switches from a GI method (--method rh, vpl, rsm, drm or radiosity)".into());
+            return Err("--switch-method: switches from a GI method (--method rh, vpl, rsm, drm, radiosity or photon-grid)".into());
         }
         if o.indirect_only && o.gi_output == GiOutput::IrradianceVolume {
             return Err("--indirect-only measures the per-pixel reconstruction; render the IrradianceVolume output \

@@ -326,29 +326,7 @@ struct LightingKey {
     settings: RadiositySettings,
 }
 
-/// `light` with its diffuse map replaced by a black one, for a radiosity camera: Bevy then adds only the
-/// environment's specular reflections, and radiosity its diffuse light with occlusion (a room lit through
-/// a window gets the sky's light where the window lets it in, not everywhere). Radiosity reads the
-/// specular map, whose image must keep its CPU data (the default `RenderAssetUsages` of loaded images).
-///
-/// ```no_run
-/// # use bevy::prelude::*;
-/// # use bevy::light::EnvironmentMapLight;
-/// # use bevy_diffuse_gi::prelude::*;
-/// # fn setup(mut commands: Commands, mut images: ResMut<Assets<Image>>, assets: Res<AssetServer>) {
-/// let sky = assets.load("sky_specular_rgb9e5.ktx2");
-/// let light = EnvironmentMapLight { diffuse_map: sky.clone(), specular_map: sky, intensity: 1000.0, ..default() };
-/// commands.spawn((
-///     Camera3d::default(),
-///     DiffuseGi { method: GiMethod::Radiosity, ..default() },
-///     bevy_diffuse_gi::radiosity::occluded_environment(&light, &mut images),
-/// ));
-/// # }
-/// ```
-pub fn occluded_environment(light: &bevy::light::EnvironmentMapLight, images: &mut Assets<Image>) -> bevy::light::EnvironmentMapLight {
-    let black = crate::scene::environment::cube_image(1, bevy::asset::RenderAssetUsages::RENDER_WORLD, |_| Vec3::ZERO);
-    bevy::light::EnvironmentMapLight { diffuse_map: images.add(black), ..light.clone() }
-}
+pub use crate::scene::environment::occluded_environment;
 
 /// Main-thread milliseconds of the solve's stages, in Bevy's diagnostics (a measurement per solve).
 pub const DIAGNOSTIC_UPDATE_ELEMENTS: DiagnosticPath = DiagnosticPath::const_new("diffuse_gi/radiosity_update_elements");

@@ -270,6 +270,31 @@ fn decoder(format: TextureFormat) -> Option<fn(&[u8]) -> Vec3> {
     })
 }
 
+/// `light` with its diffuse map replaced by a black one, for a camera whose GI method reads the
+/// environment (radiosity, the photon grid): Bevy then adds only the environment's specular reflections,
+/// and the method its diffuse light with occlusion (a room lit through a window gets the sky's light
+/// where the window lets it in, not everywhere). The methods read the specular map, whose image must
+/// keep its CPU data (the default `RenderAssetUsages` of loaded images).
+///
+/// ```no_run
+/// # use bevy::prelude::*;
+/// # use bevy::light::EnvironmentMapLight;
+/// # use bevy_diffuse_gi::prelude::*;
+/// # fn setup(mut commands: Commands, mut images: ResMut<Assets<Image>>, assets: Res<AssetServer>) {
+/// let sky = assets.load("sky_specular_rgb9e5.ktx2");
+/// let light = EnvironmentMapLight { diffuse_map: sky.clone(), specular_map: sky, intensity: 1000.0, ..default() };
+/// commands.spawn((
+///     Camera3d::default(),
+///     DiffuseGi { method: GiMethod::Radiosity, ..default() },
+///     bevy_diffuse_gi::scene::environment::occluded_environment(&light, &mut images),
+/// ));
+/// # }
+/// ```
+pub fn occluded_environment(light: &bevy::light::EnvironmentMapLight, images: &mut bevy::asset::Assets<Image>) -> bevy::light::EnvironmentMapLight {
+    let black = cube_image(1, bevy::asset::RenderAssetUsages::RENDER_WORLD, |_| Vec3::ZERO);
+    bevy::light::EnvironmentMapLight { diffuse_map: images.add(black), ..light.clone() }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -1035,6 +1035,38 @@ pub struct SurfacePoint<'a> {
     pub material: &'a SnapshotMaterial,
 }
 
+/// Whether the triangle `tri` overlaps the box `centre ± half` (Akenine-Möller, "Fast 3D Triangle-Box
+/// Overlap Testing", 2001: the 13 separating axes).
+pub fn triangle_box_overlap(centre: Vec3, half: Vec3, tri: [Vec3; 3]) -> bool {
+    let v = tri.map(|p| p - centre);
+    let e = [v[1] - v[0], v[2] - v[1], v[0] - v[2]];
+    let axes_separate = |axis: Vec3| {
+        if axis.length_squared() < 1e-20 {
+            return false;
+        }
+        let p = v.map(|q| q.dot(axis));
+        let r = half.x * axis.x.abs() + half.y * axis.y.abs() + half.z * axis.z.abs();
+        p[0].min(p[1]).min(p[2]) > r || p[0].max(p[1]).max(p[2]) < -r
+    };
+    // The nine edge × box-axis cross products.
+    for edge in e {
+        for axis in [Vec3::X, Vec3::Y, Vec3::Z] {
+            if axes_separate(edge.cross(axis)) {
+                return false;
+            }
+        }
+    }
+    // The box's own axes.
+    for k in 0..3 {
+        let (lo, hi) = (v[0][k].min(v[1][k]).min(v[2][k]), v[0][k].max(v[1][k]).max(v[2][k]));
+        if lo > half[k] || hi < -half[k] {
+            return false;
+        }
+    }
+    // The triangle's plane.
+    !axes_separate(e[0].cross(e[1]))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -6,7 +6,7 @@
 //! The environment is a procedural cube map ([`sky_radiance`]): a zenith-blue to horizon-white gradient
 //! with a broad warm glow towards the south-east and a dark brown ground below the horizon, so that the
 //! light inside depends on the map's orientation (a face or axis mix-up shows). The camera's
-//! `EnvironmentMapLight` has a black diffuse map ([`crate::radiosity::occluded_environment`]): Bevy
+//! `EnvironmentMapLight` has a black diffuse map ([`crate::scene::environment::occluded_environment`]): Bevy
 //! shows only the sky's reflections, and the sky's diffuse light inside is the GI's to add, with
 //! occlusion. The ground truth bins sky light reflected once with the indirect light for that reason
 //! ([`crate::reference`]).
@@ -80,7 +80,7 @@ pub fn spawn_sky_room(commands: &mut Commands, meshes: &mut Assets<Mesh>, materi
     commands.queue(|world: &mut World| {
         let sky = world.resource_mut::<Assets<Image>>().add(sky_image());
         let light = EnvironmentMapLight { diffuse_map: sky.clone(), specular_map: sky, intensity: 1.0, ..default() };
-        let light = crate::radiosity::occluded_environment(&light, &mut world.resource_mut::<Assets<Image>>());
+        let light = crate::scene::environment::occluded_environment(&light, &mut world.resource_mut::<Assets<Image>>());
         let mut cameras = world.query_filtered::<Entity, With<super::SceneCamera>>();
         let cameras: Vec<Entity> = cameras.iter(world).collect();
         for camera in cameras {

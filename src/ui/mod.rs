@@ -17,6 +17,7 @@ use bevy_egui::{EguiContexts, EguiPlugin, EguiPrimaryContextPass, egui};
 use crate::camera::{DiffuseGi, GiDebugView, GiMethod, GiOutput};
 use crate::drm::{DrmSettings, DrmSolidAngle};
 use crate::radiosity::{LinkTransfer, RadiosityActivity, RadiositySettings};
+use crate::photon_grid::{PhotonGridActivity, PhotonGridSettings};
 use crate::rsm_gather::{RsmGatherSettings, RsmSampleWeights};
 use crate::vpl::VplSettings;
 use crate::light::GiLight;
@@ -95,6 +96,7 @@ fn inspector_ui(
         Option<&mut RsmGatherSettings>,
         Option<&mut DrmSettings>,
         Option<&mut RadiositySettings>,
+        Option<&mut PhotonGridSettings>,
     )>,
     mut volumes: Query<(Entity, Option<&Name>, &mut RadianceHintsVolume, &GlobalTransform)>,
     mut lights: Query<(Entity, Option<&Name>, &mut GiLight)>,
@@ -104,6 +106,7 @@ fn inspector_ui(
     activity: Option<Res<RadianceHintsActivity>>,
     pipeline_errors: Option<Res<crate::GiPipelineErrors>>,
     radiosity: Option<Res<RadiosityActivity>>,
+    photon_grid: Option<Res<PhotonGridActivity>>,
 ) -> Result {
     let label = |entity: Entity, name: Option<&Name>| name.map_or_else(|| format!("{entity}"), |n| n.to_string());
     let ctx = contexts.ctx_mut()?;
@@ -117,7 +120,7 @@ fn inspector_ui(
         .vscroll(true)
         .show(ctx, |ui| {
         egui::CollapsingHeader::new("Cameras").default_open(true).show(ui, |ui| {
-            for (entity, name, mut gi, vpl, rsm_gather, drm, radiosity_settings) in &mut cameras {
+            for (entity, name, mut gi, vpl, rsm_gather, drm, radiosity_settings, photon_settings) in &mut cameras {
                 ui.label(label(entity, name));
                 let mut g = gi.clone();
                 ui.checkbox(&mut g.enabled, "bounced light (G)");
@@ -187,6 +190,21 @@ fn inspector_ui(
                         }
                         if let Some(activity) = radiosity.as_deref() {
                             radiosity_activity_ui(ui, activity);
+                        }
+                    }
+                    GiMethod::PhotonGrid => {
+                        match photon_settings {
+                            Some(mut settings) => {
+                                ui.push_id(entity, |ui| photon_grid_ui(ui, &mut settings));
+                            }
+                            None => {
+                                if ui.button("tune photon grid settings (adds PhotonGridSettings::MEDIUM)").clicked() {
+                                    commands.entity(entity).insert(PhotonGridSettings::MEDIUM);
+                                }
+                            }
+                        }
+                        if let Some(activity) = photon_grid.as_deref() {
+                            photon_grid_activity_ui(ui, activity);
                         }
                     }
                     GiMethod::RadianceHints => {}
@@ -397,6 +415,42 @@ fn radiosity_activity_ui(ui: &mut egui::Ui, a: &RadiosityActivity) {
     ui.label(format!(
         "update {:.1} ms, links {:.1} ms, refine+push {:.1} ms, illumination {:.1} ms ({} bounces)",
         t.update_elements_ms, t.create_links_ms, t.refine_push_ms, t.illumination_ms, t.bounces_run
+    ));
+}
+
+/// The widgets of a camera's [`PhotonGridSettings`]; each range is the field's valid range. ASCII
+/// labels only (see `rsm_gather_ui`).
+pub fn photon_grid_ui(ui: &mut egui::Ui, settings: &mut Mut<PhotonGridSettings>) {
+    let mut v = (**settings).clone();
+    ui.horizontal(|ui| {
+        ui.label("photon grid preset");
+        for (name, preset) in [("Low", PhotonGridSettings::LOW), ("Medium", PhotonGridSettings::MEDIUM), ("High", PhotonGridSettings::HIGH)] {
+            if ui.button(name).clicked() {
+                v = preset;
+            }
+        }
+    });
+    ui.add(egui::Slider::new(&mut v.resolution, 4..=96).text("SH cells along the scene"));
+    ui.add(egui::Slider::new(&mut v.photons, 1024..=4_194_304).logarithmic(true).text("photons"));
+    ui.add(egui::Slider::new(&mut v.max_reflections, 1..=8).text("stored reflections"));
+    ui.add(egui::Slider::new(&mut v.sh_directions, 16..=2048).logarithmic(true).text("probe directions N_sh"));
+    ui.add(egui::Slider::new(&mut v.gather_samples, 0..=256).text("gather directions N_d (0: exact)"));
+    ui.add(egui::Slider::new(&mut v.r_max, 1.0..=3.0).text("r_max (cells)"));
+    ui.add(egui::Slider::new(&mut v.obscurance_distance, 0.0..=1000.0).logarithmic(true).text("obscurance distance (m, 0 off)"));
+    ui.add(egui::Slider::new(&mut v.intensity, 0.0..=1000.0).logarithmic(true).text("intensity"));
+    commit(v, settings);
+}
+
+/// What the last photon-grid update did: grid, photons and the paper's Table 1 stages.
+fn photon_grid_activity_ui(ui: &mut egui::Ui, a: &PhotonGridActivity) {
+    let t = &a.times;
+    ui.label(format!(
+        "{}x{}x{} cells, {} boundary ({} V-cells), {} probes ({} inside walls), {} photons stored",
+        a.dims.x, a.dims.y, a.dims.z, a.boundary_sh_cells, a.boundary_v_cells, a.probes, a.inside, a.photons
+    ));
+    ui.label(format!(
+        "voxelize {:.1} ms, photons {:.1} ms, R-grid {:.1} ms, SH field {:.1} ms ({} updates)",
+        t.voxelize_ms, t.trace_ms, t.rgrid_ms, t.field_ms, a.updates
     ));
 }
 

@@ -1,0 +1,165 @@
+// The photon grid's final gather (Chang, Park & Ihm, §4.1–4.2 and 4.4), per texel of the camera's
+// indirect-light target. The SH field holds, at the centres of the SH-grid cells near surfaces, nine
+// coefficients (bands 0–2) of the incoming radiance (rgb) and of the distance to the first surface (a).
+// At the texel's surface point x with normal n:
+//
+//     I_lm(x) = Σ_pqr w(x_pqr) I_lm(x_pqr) / Σ_pqr w(x_pqr)         over the 27 cells around x (§4.1)
+//     w = w_sh(d) · side,  w_sh(d) = 2d³/r³ − 3d²/r² + 1 (d < r)
+//
+// where `side` fades out the probes behind the surface (src/photon_grid/grid.rs `side_weight`). Then
+// E = ∫ Ī(ω) cos θ dω over the hemisphere: exactly, by the clamped-cosine convolution of the nine
+// coefficients (N_d = 0), or by the paper's N_d directions: of 2 N_d uniform directions on the sphere,
+// those above the surface, E ≈ 2π/N Σ cos θ_i Ī(ω_i) (§4.2). With an obscurance distance D the result is
+// multiplied by O = 2/N Σ min(d̄(ω_i)/D, 1) cos θ_i (§4.4). Writes E/π (the frame multiplies by the
+// albedo and the exposure) and weight 1. The CPU twin is `ShField::irradiance` in grid.rs.
+// The Rust side of `PhotonGridUniform` is `PhotonGridUniform` in src/photon_grid/mod.rs (`ShaderType`).
+
+#import bevy_core_pipeline::fullscreen_vertex_shader::FullscreenVertexOutput
+#import bevy_render::view::View
+#import bevy_diffuse_gi::gi_frame::{surface_at, finite_or_zero}
+
+struct PhotonGridUniform {
+    origin: vec3<f32>,
+    cell_size: f32,
+    dims: vec3<u32>,
+    r_max: f32,
+    intensity: f32,
+    gather_samples: u32,
+    obscurance_distance: f32,
+    probes: u32,
+}
+
+@group(0) @binding(0) var<uniform> view: View;
+@group(0) @binding(1) var depth_texture: texture_depth_2d;
+@group(0) @binding(2) var gbuffer: texture_2d<u32>;
+
+@group(1) @binding(0) var<uniform> grid: PhotonGridUniform;
+@group(1) @binding(1) var<storage, read> cell_probe: array<u32>;
+@group(1) @binding(2) var<storage, read> coefficients: array<vec4<f32>>;
+
+const PI: f32 = 3.141592653589793;
+const NO_PROBE: u32 = 0xffffffffu;
+// 1 at full resolution, 2 at half resolution.
+const GI_SCALE: i32 = #{GI_SCALE};
+// Directions of the obscurance when the integral itself is exact (N_d = 0).
+const OBSCURANCE_SAMPLES: u32 = 32u;
+
+// The nine real SH basis functions (the order and constants of src/sh.rs).
+fn sh_basis(d: vec3<f32>) -> array<f32, 9> {
+    return array<f32, 9>(
+        0.2820948,
+        0.4886025 * d.y,
+        0.4886025 * d.z,
+        0.4886025 * d.x,
+        1.0925485 * d.x * d.y,
+        1.0925485 * d.y * d.z,
+        0.31539157 * (3.0 * d.z * d.z - 1.0),
+        1.0925485 * d.x * d.z,
+        0.5462742 * (d.x * d.x - d.y * d.y),
+    );
+}
+
+// Point i of n of the spherical Fibonacci lattice (`sampling::fibonacci_sphere`).
+fn fibonacci_sphere(i: u32, n: u32) -> vec3<f32> {
+    let z = 1.0 - (2.0 * f32(i) + 1.0) / f32(n);
+    let r = sqrt(max(1.0 - z * z, 0.0));
+    let phi = 2.3999632 * f32(i);
+    return vec3(r * cos(phi), r * sin(phi), z);
+}
+
+// `sh_weight` and `side_weight` of grid.rs.
+fn probe_weight(x: vec3<f32>, n: vec3<f32>, p: vec3<f32>) -> f32 {
+    let d = length(p - x);
+    if d >= grid.r_max {
+        return 0.0;
+    }
+    let t = d / grid.r_max;
+    let w_sh = 2.0 * t * t * t - 3.0 * t * t + 1.0;
+    let side = clamp((dot(n, p - x) / grid.cell_size + 0.25) / 0.75, 0.0, 1.0);
+    return w_sh * side;
+}
+
+fn evaluate(c: array<vec4<f32>, 9>, d: vec3<f32>) -> vec4<f32> {
+    let y = sh_basis(d);
+    var v = vec4(0.0);
+    for (var k = 0u; k < 9u; k++) {
+        v += c[k] * y[k];
+    }
+    return v;
+}
+
+@fragment
+fn gather(in: FullscreenVertexOutput) -> @location(0) vec4<f32> {
+    let surface = surface_at(vec2<i32>(floor(in.position.xy)), GI_SCALE, view.world_from_clip, depth_texture, gbuffer);
+    if !surface.found {
+        discard;
+    }
+    let x = surface.position;
+    let n = surface.normal;
+    let base = vec3<i32>(floor((x - grid.origin) / grid.cell_size));
+    let dims = vec3<i32>(grid.dims);
+    var c = array<vec4<f32>, 9>();
+    var total = 0.0;
+    for (var k = 0; k < 27; k++) {
+        let cell = base + vec3(k % 3 - 1, (k / 3) % 3 - 1, k / 9 - 1);
+        if any(cell < vec3(0)) || any(cell >= dims) {
+            continue;
+        }
+        let probe = cell_probe[(cell.z * dims.y + cell.y) * dims.x + cell.x];
+        if probe == NO_PROBE {
+            continue;
+        }
+        let p = grid.origin + (vec3<f32>(cell) + 0.5) * grid.cell_size;
+        let w = probe_weight(x, n, p);
+        if w <= 0.0 {
+            continue;
+        }
+        for (var j = 0u; j < 9u; j++) {
+            c[j] += coefficients[probe * 9u + j] * w;
+        }
+        total += w;
+    }
+    if total <= 1e-6 {
+        return vec4(0.0, 0.0, 0.0, 1.0);
+    }
+    for (var j = 0u; j < 9u; j++) {
+        c[j] /= total;
+    }
+
+    var e = vec3(0.0);
+    var obscurance = 1.0;
+    let directions = 2u * select(grid.gather_samples, OBSCURANCE_SAMPLES, grid.gather_samples == 0u);
+    if grid.gather_samples == 0u {
+        // The clamped-cosine lobe's coefficients: Â₀ = π, Â₁ = 2π/3, Â₂ = π/4.
+        let y = sh_basis(n);
+        let lobe = array<f32, 9>(PI, 2.0 * PI / 3.0, 2.0 * PI / 3.0, 2.0 * PI / 3.0, PI / 4.0, PI / 4.0, PI / 4.0, PI / 4.0, PI / 4.0);
+        for (var j = 0u; j < 9u; j++) {
+            e += c[j].rgb * (lobe[j] * y[j]);
+        }
+    }
+    if grid.gather_samples > 0u || grid.obscurance_distance > 0.0 {
+        var sum = vec3(0.0);
+        var open = 0.0;
+        var used = 0.0;
+        for (var i = 0u; i < directions; i++) {
+            let w = fibonacci_sphere(i, directions);
+            let cos_theta = dot(w, n);
+            if cos_theta <= 0.0 {
+                continue;
+            }
+            let v = evaluate(c, w);
+            sum += max(v.rgb, vec3(0.0)) * cos_theta;
+            if grid.obscurance_distance > 0.0 {
+                open += min(max(v.a, 0.0) / grid.obscurance_distance, 1.0) * cos_theta;
+            }
+            used += 1.0;
+        }
+        if grid.gather_samples > 0u {
+            e = sum * (2.0 * PI / max(used, 1.0));
+        }
+        if grid.obscurance_distance > 0.0 {
+            obscurance = clamp(open * 2.0 / max(used, 1.0), 0.0, 1.0);
+        }
+    }
+    return vec4(finite_or_zero(max(e, vec3(0.0)) / PI * grid.intensity * obscurance), 1.0);
+}

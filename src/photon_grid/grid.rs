@@ -1,0 +1,1121 @@
+//! The preparation stage of the photon grid (Chang, Park & Ihm, §3) on the CPU: the V-grid and SH-grid
+//! (§3.1), photon tracing into the global photon list (§3.2), the multilevel R-grid by sorting, flagging,
+//! scanning and per-cell accumulation (§3.3, Fig. 3) and the spherical-harmonics field of incoming
+//! radiance and distance at the SH-grid's boundary cells and their 26 neighbours (§3.4). The final gather
+//! (§4) has a CPU twin here, [`ShField::irradiance`], for the tests; the GPU's is
+//! `shaders/photon_grid/gather.wgsl`. See the [module docs](super) for the algorithm and its departures.
+
+use std::f32::consts::PI;
+
+use bevy::math::{IVec3, UVec3, Vec3, Vec4};
+use rand::RngExt;
+use rayon::prelude::*;
+
+use crate::sampling::{cosine_hemisphere, fibonacci_sphere, orthonormal_basis, rng_for, uniform2, uniform_sphere};
+use crate::scene::environment::Environment;
+use crate::scene::{SceneSnapshot, SnapshotLight, range_falloff, triangle_area, triangle_box_overlap};
+use crate::sh::{COSINE_LOBE, band, basis};
+
+/// V-grid cells per SH-grid cell along each axis (§3.1: 4 × 4 × 4 V-cells merge into one SH cell).
+pub const V_PER_SH: u32 = 4;
+
+/// The six directional faces of a cell: `+x, −x, +y, −y, +z, −z`.
+pub const FACES: usize = 6;
+
+/// Where the grids lie: a box of `dims` cubic SH-grid cells of side `cell` from `origin`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GridLayout {
+    pub origin: Vec3,
+    /// SH-grid cell side, metres.
+    pub cell: f32,
+    /// SH-grid cells per axis.
+    pub dims: UVec3,
+}
+
+impl GridLayout {
+    /// The layout over the box `lo..hi` with `resolution` cells along its longest side (cubic cells),
+    /// padded by a cell on every side, so that surfaces on the box's faces lie inside and a box whose
+    /// sides are whole cells has its walls on cell boundaries (not through the probes at cell centres).
+    pub fn fit(lo: Vec3, hi: Vec3, resolution: u32) -> Self {
+        let resolution = resolution.max(1);
+        let extent = (hi - lo).max(Vec3::splat(1e-3));
+        let cell = extent.max_element() / resolution as f32;
+        let padded = extent + 2.0 * cell;
+        let dims = (padded / cell).ceil().as_uvec3().max(UVec3::ONE);
+        let centre = (lo + hi) * 0.5;
+        Self { origin: centre - dims.as_vec3() * cell * 0.5, cell, dims }
+    }
+
+    pub fn cell_count(&self) -> usize {
+        (self.dims.x * self.dims.y * self.dims.z) as usize
+    }
+
+    /// V-grid cells per axis.
+    pub fn v_dims(&self) -> UVec3 {
+        self.dims * V_PER_SH
+    }
+
+    /// V-grid cell side, metres.
+    pub fn v_cell(&self) -> f32 {
+        self.cell / V_PER_SH as f32
+    }
+
+    /// Linear index of SH cell `c`.
+    pub fn index(&self, c: UVec3) -> usize {
+        ((c.z * self.dims.y + c.y) * self.dims.x + c.x) as usize
+    }
+
+    /// The SH cell of a linear index.
+    pub fn coords(&self, i: usize) -> UVec3 {
+        let i = i as u32;
+        UVec3::new(i % self.dims.x, (i / self.dims.x) % self.dims.y, i / (self.dims.x * self.dims.y))
+    }
+
+    /// The SH cell containing `p`, if inside.
+    pub fn cell_of(&self, p: Vec3) -> Option<UVec3> {
+        let c = ((p - self.origin) / self.cell).floor();
+        (c.is_finite() && c.cmpge(Vec3::ZERO).all() && c.cmplt(self.dims.as_vec3()).all()).then(|| c.as_uvec3())
+    }
+
+    /// World centre of SH cell `c`.
+    pub fn centre(&self, c: UVec3) -> Vec3 {
+        self.origin + (c.as_vec3() + 0.5) * self.cell
+    }
+}
+
+/// One boundary cell of the V-grid: the area-weighted sum of the unit normals of the triangles that
+/// overlap it (§3.1) and their area (each triangle's area is shared equally among the cells it overlaps).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct VCell {
+    pub normal_sum: Vec3,
+    pub area: f32,
+}
+
+/// The V-grid (a bit per cell, set on boundary cells, and each boundary cell's [`VCell`]) and the SH-grid
+/// built from it by merging 4 × 4 × 4 cells (§3.1).
+#[derive(Clone, Debug, Default)]
+pub struct VGrid {
+    pub layout: Option<GridLayout>,
+    bits: Vec<u64>,
+    /// Boundary cells sorted by linear V-grid index.
+    cells: Vec<(u32, VCell)>,
+    /// Per SH cell: whether one of its V-cells is a boundary cell.
+    pub sh_boundary: Vec<bool>,
+}
+
+impl VGrid {
+    /// Surface voxelisation of every triangle of `snapshot` into the grid `layout` (a conservative
+    /// triangle–box overlap per cell of the triangle's bounding box).
+    pub fn build(snapshot: &SceneSnapshot, layout: GridLayout) -> Self {
+        let v_dims = layout.v_dims();
+        let v_cell = layout.v_cell();
+        let triangles: Vec<[Vec3; 3]> = snapshot.triangles().map(|(_, t)| t).collect();
+        let mut entries: Vec<(u32, VCell)> = triangles
+            .par_iter()
+            .flat_map_iter(|tri| {
+                let area = triangle_area(tri);
+                let normal = (tri[1] - tri[0]).cross(tri[2] - tri[0]).normalize_or_zero();
+                let local = tri.map(|p| (p - layout.origin) / v_cell);
+                let lo = local[0].min(local[1]).min(local[2]).floor().max(Vec3::ZERO);
+                let hi = local[0].max(local[1]).max(local[2]).floor().min(v_dims.as_vec3() - 1.0);
+                let mut hits = Vec::new();
+                if area.is_finite() && area > 0.0 && normal != Vec3::ZERO && lo.cmple(hi).all() {
+                    let (lo, hi) = (lo.as_uvec3(), hi.as_uvec3());
+                    for z in lo.z..=hi.z {
+                        for y in lo.y..=hi.y {
+                            for x in lo.x..=hi.x {
+                                let c = UVec3::new(x, y, z);
+                                if triangle_box_overlap(c.as_vec3() + 0.5, Vec3::splat(0.5), local) {
+                                    hits.push((z * v_dims.y + y) * v_dims.x + x);
+                                }
+                            }
+                        }
+                    }
+                }
+                let share = area / hits.len().max(1) as f32;
+                hits.into_iter().map(move |i| (i, VCell { normal_sum: normal * share, area: share }))
+            })
+            .collect();
+        entries.par_sort_unstable_by_key(|e| e.0);
+        let mut cells: Vec<(u32, VCell)> = Vec::new();
+        for (i, c) in entries {
+            match cells.last_mut() {
+                Some((j, sum)) if *j == i => {
+                    sum.normal_sum += c.normal_sum;
+                    sum.area += c.area;
+                }
+                _ => cells.push((i, c)),
+            }
+        }
+        let total = (v_dims.x * v_dims.y * v_dims.z) as usize;
+        let mut bits = vec![0u64; total.div_ceil(64)];
+        let mut sh_boundary = vec![false; layout.cell_count()];
+        for &(i, _) in &cells {
+            bits[i as usize / 64] |= 1 << (i % 64);
+            let v = UVec3::new(i % v_dims.x, (i / v_dims.x) % v_dims.y, i / (v_dims.x * v_dims.y));
+            sh_boundary[layout.index(v / V_PER_SH)] = true;
+        }
+        Self { layout: Some(layout), bits, cells, sh_boundary }
+    }
+
+    /// Boundary V-cells.
+    pub fn boundary_cells(&self) -> usize {
+        self.cells.len()
+    }
+
+    /// Whether V-cell `v` is a boundary cell (false outside the grid).
+    pub fn occupied(&self, v: IVec3) -> bool {
+        let Some(layout) = self.layout else { return false };
+        let d = layout.v_dims().as_ivec3();
+        if v.cmplt(IVec3::ZERO).any() || v.cmpge(d).any() {
+            return false;
+        }
+        let i = ((v.z * d.y + v.y) * d.x + v.x) as usize;
+        self.bits[i / 64] & (1 << (i % 64)) != 0
+    }
+
+    /// The data of boundary cell `v`.
+    pub fn cell(&self, v: UVec3) -> Option<VCell> {
+        let d = self.layout?.v_dims();
+        let i = (v.z * d.y + v.y) * d.x + v.x;
+        self.cells.binary_search_by_key(&i, |e| e.0).ok().map(|k| self.cells[k].1)
+    }
+
+    /// Walks the V-grid from `origin` (world) along the unit `direction`: the first boundary cell and the
+    /// distance at which the ray enters it, or `None` when it leaves the grid. The two-level traversal of
+    /// §3.4.2: whole SH cells without a boundary V-cell are crossed in one step.
+    pub fn march(&self, origin: Vec3, direction: Vec3) -> Option<(UVec3, f32)> {
+        let layout = self.layout?;
+        let v_cell = layout.v_cell();
+        let a = (origin - layout.origin) / v_cell;
+        let d = direction;
+        let moving = d.abs().cmpge(Vec3::splat(1e-8));
+        let step = d.signum().as_ivec3();
+        let inv = Vec3::ONE / d.abs().max(Vec3::splat(1e-8));
+        // The cell at distance `t0` (V-cell units) and the distances to its next boundary per axis.
+        let start = |t0: f32| {
+            let p = a + d * t0;
+            let frac = p - p.floor();
+            let t_max = Vec3::select(d.cmplt(Vec3::ZERO), frac, Vec3::ONE - frac) * inv + t0;
+            (p.floor().as_ivec3(), Vec3::select(moving, t_max, Vec3::splat(3.0e38)))
+        };
+        let dims = layout.v_dims().as_ivec3();
+        let per = V_PER_SH as i32;
+        let (mut v, mut t_max) = start(0.0);
+        let mut t = 0.0f32;
+        for _ in 0..(4 * (dims.x + dims.y + dims.z) + 8) {
+            if v.cmplt(IVec3::ZERO).any() || v.cmpge(dims).any() {
+                return None;
+            }
+            let sh = v / per;
+            if !self.sh_boundary[layout.index(sh.as_uvec3())] {
+                // An SH cell without surfaces is crossed in one step (the two-level traversal).
+                let lo = (sh * per).as_vec3();
+                let mut t_exit = f32::INFINITY;
+                for k in 0..3 {
+                    if d[k] > 1e-8 {
+                        t_exit = t_exit.min((lo[k] + per as f32 - a[k]) / d[k]);
+                    } else if d[k] < -1e-8 {
+                        t_exit = t_exit.min((lo[k] - a[k]) / d[k]);
+                    }
+                }
+                if !t_exit.is_finite() {
+                    return None;
+                }
+                t = t_exit.max(t) + 1e-4;
+                (v, t_max) = start(t);
+                continue;
+            }
+            if self.occupied(v) {
+                return Some((v.as_uvec3(), t * v_cell));
+            }
+            if t_max.x < t_max.y && t_max.x < t_max.z {
+                t = t_max.x;
+                t_max.x += inv.x;
+                v.x += step.x;
+            } else if t_max.y < t_max.z {
+                t = t_max.y;
+                t_max.y += inv.y;
+                v.y += step.y;
+            } else {
+                t = t_max.z;
+                t_max.z += inv.z;
+                v.z += step.z;
+            }
+        }
+        None
+    }
+}
+
+/// One entry of the global photon list (§3.2): the SH cell it was stored in, its outgoing (reflected)
+/// direction and the flux it leaves with, lumens per channel.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Photon {
+    pub cell: u32,
+    pub direction: Vec3,
+    pub power: Vec3,
+}
+
+/// Where the emitted flux went, lumens per channel (expected values: a surface absorbs `(1 − ρ)` of what
+/// reaches it, whatever the Russian roulette drew), for the conservation test and the panel.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PhotonStats {
+    /// Flux leaving the light sources (including emission stored at emissive surfaces).
+    pub emitted: Vec3,
+    /// Absorbed by surfaces.
+    pub absorbed: Vec3,
+    /// Left the scene without hitting anything.
+    pub escaped: Vec3,
+    /// Reflected at the last stored reflection and not traced further.
+    pub truncated: Vec3,
+    /// Photons emitted and photons stored.
+    pub paths: u32,
+    pub stored: u32,
+}
+
+/// What photon tracing needs besides the snapshot.
+#[derive(Clone, Copy, Debug)]
+pub struct TraceParams {
+    /// Photons emitted over all sources.
+    pub photons: u32,
+    /// Stored reflections per path (the paper keeps four).
+    pub max_reflections: u32,
+    pub seed: u64,
+    /// Exposure of the camera (for `emissive.alpha < 1` materials).
+    pub exposure: f32,
+}
+
+/// A source of photons with its emitted flux (lumens per channel).
+enum Source<'a> {
+    Light(SnapshotLight),
+    /// An emissive triangle (snapshot index).
+    Emitter(u32),
+    /// The environment map and its mean radiance.
+    Environment(&'a Environment, Vec3),
+}
+
+fn luminance_sum(v: Vec3) -> f32 {
+    let s = v.x + v.y + v.z;
+    if s.is_finite() { s.max(0.0) } else { 0.0 }
+}
+
+/// Traces `params.photons` photons from `lights`, the snapshot's emissive triangles and its environment
+/// (§3.2): each hit on a surface reflects by Russian roulette on the diffuse albedo, and a reflected
+/// photon is stored with its outgoing direction, the flux it leaves with and the SH cell of the hit; up
+/// to `max_reflections` stored reflections per path. Emissive surfaces also store their emission at the
+/// point it leaves, so that the R-grid holds their radiance too. Photons outside `layout` are traced but
+/// not stored.
+pub fn trace_photons(
+    snapshot: &SceneSnapshot,
+    lights: &[SnapshotLight],
+    environment: Option<&Environment>,
+    layout: GridLayout,
+    params: &TraceParams,
+) -> (Vec<Photon>, PhotonStats) {
+    let Some((lo, hi)) = snapshot.bounds() else {
+        return (Vec::new(), PhotonStats::default());
+    };
+    let centre = (lo + hi) * 0.5;
+    let radius = ((hi - lo).length() * 0.5).max(1e-3) * 1.01;
+    let epsilon = snapshot.ray_epsilon();
+    let disc_area = PI * radius * radius;
+
+    // Sources and their flux.
+    let mut sources: Vec<(Source, Vec3)> = Vec::new();
+    for &light in lights {
+        let flux = match light {
+            SnapshotLight::Directional { illuminance, .. } => illuminance * disc_area,
+            SnapshotLight::Point { intensity, .. } => intensity * 4.0 * PI,
+            SnapshotLight::Spot { intensity, spot_scale, spot_offset, .. } => {
+                let cos_outer = spot_cos_outer(spot_scale, spot_offset);
+                intensity * (2.0 * PI * (1.0 - cos_outer))
+            }
+        };
+        sources.push((Source::Light(light), flux));
+    }
+    for (i, tri) in snapshot.triangles() {
+        let (instance, _) = snapshot.locate(i);
+        let Some(material) = snapshot.materials.get(instance.material as usize) else { continue };
+        let emission = material.emission(params.exposure);
+        if !emission.is_finite() || emission.max_element() <= 0.0 {
+            continue;
+        }
+        let area = triangle_area(&tri);
+        // Two-sided Lambertian emitter: π L_e A from each face.
+        sources.push((Source::Emitter(i), emission.max(Vec3::ZERO) * (2.0 * PI * area)));
+    }
+    if let Some(env) = environment {
+        let mean = (0..256).map(|i| env.radiance(fibonacci_sphere(i, 256))).sum::<Vec3>() / 256.0;
+        // Radiance over the sphere of directions through a disc facing each one.
+        sources.push((Source::Environment(env, mean), mean * (4.0 * PI * disc_area)));
+    }
+    sources.retain(|(_, flux)| luminance_sum(*flux) > 0.0);
+    let total: f32 = sources.iter().map(|(_, f)| luminance_sum(*f)).sum();
+    if sources.is_empty() || !total.is_finite() || params.photons == 0 {
+        return (Vec::new(), PhotonStats::default());
+    }
+    // Stratified allocation by flux: photon k comes from the source whose cumulative share holds
+    // (k + ½)/N, and carries its flux over the photons it got.
+    let n = params.photons;
+    let mut counts = vec![0u32; sources.len()];
+    let mut cumulative = Vec::with_capacity(sources.len());
+    let mut acc = 0.0;
+    for (_, f) in &sources {
+        acc += luminance_sum(*f) / total;
+        cumulative.push(acc);
+    }
+    let source_of = |k: u32| {
+        let u = (k as f32 + 0.5) / n as f32;
+        cumulative.partition_point(|&c| c < u).min(sources.len() - 1)
+    };
+    for k in 0..n {
+        counts[source_of(k)] += 1;
+    }
+    // Emitter triangles of the same source class are sampled by their own flux above; each source's
+    // photons share its flux.
+    let results: Vec<(Vec<Photon>, PhotonStats)> = (0..n)
+        .into_par_iter()
+        .chunks(1024)
+        .map(|chunk| {
+            let mut photons = Vec::new();
+            let mut stats = PhotonStats::default();
+            for k in chunk {
+                let s = source_of(k);
+                let (source, flux) = &sources[s];
+                let mut rng = rng_for(params.seed, k as u64);
+                let share = *flux / counts[s] as f32;
+                let Some((origin, direction, power, falloff)) = emit(snapshot, source, share, (centre, radius), &mut rng, epsilon) else {
+                    continue;
+                };
+                if !power.is_finite() || power.max_element() <= 0.0 {
+                    continue;
+                }
+                stats.paths += 1;
+                stats.emitted += power;
+                if let Source::Emitter(..) = source {
+                    // The emission leaves the emitter: stored, like a reflection, with its direction.
+                    if let Some(c) = layout.cell_of(origin) {
+                        photons.push(Photon { cell: layout.index(c) as u32, direction, power });
+                        stats.stored += 1;
+                    }
+                }
+                trace_path(snapshot, layout, params, origin, direction, power, falloff, epsilon, &mut rng, &mut photons, &mut stats);
+            }
+            (photons, stats)
+        })
+        .collect();
+    let mut photons = Vec::with_capacity(results.iter().map(|r| r.0.len()).sum());
+    let mut stats = PhotonStats::default();
+    for (p, s) in results {
+        photons.extend(p);
+        stats.emitted += s.emitted;
+        stats.absorbed += s.absorbed;
+        stats.escaped += s.escaped;
+        stats.truncated += s.truncated;
+        stats.paths += s.paths;
+        stats.stored += s.stored;
+    }
+    (photons, stats)
+}
+
+/// `cos(outer)` of a spot cone from Bevy's scale and offset.
+fn spot_cos_outer(spot_scale: f32, spot_offset: f32) -> f32 {
+    (-spot_offset / spot_scale.max(1e-6)).clamp(-1.0, 1.0)
+}
+
+
+/// A photon leaving `source`: origin, unit direction, power and, for point and spot lights, `1 / range²`
+/// (Bevy's range window applies at the first hit). `sphere` bounds the scene.
+fn emit(
+    snapshot: &SceneSnapshot,
+    source: &Source,
+    share: Vec3,
+    (centre, radius): (Vec3, f32),
+    rng: &mut rand_pcg::Pcg32,
+    epsilon: f32,
+) -> Option<(Vec3, Vec3, Vec3, Option<f32>)> {
+    // A point of the disc of the bounding sphere facing `d`, two radii before the centre.
+    let disc = |d: Vec3, rng: &mut rand_pcg::Pcg32| {
+        let (t, b) = orthonormal_basis(d);
+        let u = uniform2(rng);
+        let r = radius * u.x.sqrt();
+        let phi = std::f32::consts::TAU * u.y;
+        centre - d * (2.0 * radius) + (t * phi.cos() + b * phi.sin()) * r
+    };
+    match *source {
+        Source::Light(SnapshotLight::Point { position, inverse_range_squared, .. }) => {
+            Some((position, uniform_sphere(uniform2(rng)), share, Some(inverse_range_squared)))
+        }
+        Source::Light(SnapshotLight::Spot { position, direction, inverse_range_squared, spot_scale, spot_offset, .. }) => {
+            // Uniform over the outer cone's solid angle, weighted by Bevy's cone falloff.
+            let cos_outer = spot_cos_outer(spot_scale, spot_offset);
+            let u = uniform2(rng);
+            let cos_t = 1.0 - u.x * (1.0 - cos_outer);
+            let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
+            let (t, b) = orthonormal_basis(direction);
+            let phi = std::f32::consts::TAU * u.y;
+            let d = (t * phi.cos() + b * phi.sin()) * sin_t + direction * cos_t;
+            let cone = (cos_t * spot_scale + spot_offset).clamp(0.0, 1.0);
+            Some((position, d.normalize_or(direction), share * cone * cone, Some(inverse_range_squared)))
+        }
+        Source::Light(SnapshotLight::Directional { direction, .. }) => {
+            let d = direction.normalize_or(Vec3::NEG_Y);
+            Some((disc(d, rng), d, share, None))
+        }
+        Source::Emitter(i) => {
+            let tri = snapshot.triangle(i);
+            let u = uniform2(rng);
+            let (a, b) = if u.x + u.y > 1.0 { (1.0 - u.x, 1.0 - u.y) } else { (u.x, u.y) };
+            let p = tri[0] + (tri[1] - tri[0]) * a + (tri[2] - tri[0]) * b;
+            let mut n = (tri[1] - tri[0]).cross(tri[2] - tri[0]).normalize_or_zero();
+            if n == Vec3::ZERO {
+                return None;
+            }
+            if rng.random::<bool>() {
+                n = -n;
+            }
+            let d = cosine_hemisphere(n, uniform2(rng));
+            Some((p + n * epsilon, d, share, None))
+        }
+        Source::Environment(env, mean) => {
+            let d = uniform_sphere(uniform2(rng));
+            let l = env.radiance(-d);
+            let ratio = Vec3::select(mean.cmpgt(Vec3::ZERO), l / mean.max(Vec3::splat(1e-30)), Vec3::ZERO);
+            Some((disc(d, rng), d, share * ratio, None))
+        }
+    }
+}
+
+/// Follows one photon through up to `max_reflections` stored diffuse reflections.
+#[expect(clippy::too_many_arguments, reason = "one photon path and where it ends up")]
+fn trace_path(
+    snapshot: &SceneSnapshot,
+    layout: GridLayout,
+    params: &TraceParams,
+    mut origin: Vec3,
+    mut direction: Vec3,
+    mut power: Vec3,
+    mut falloff: Option<f32>,
+    epsilon: f32,
+    rng: &mut rand_pcg::Pcg32,
+    photons: &mut Vec<Photon>,
+    stats: &mut PhotonStats,
+) {
+    let mut reflections = 0;
+    loop {
+        let Some(hit) = snapshot.intersect(origin, direction, epsilon, f32::INFINITY) else {
+            stats.escaped += power;
+            return;
+        };
+        // Bevy's range window of a point or spot light, at the distance of the first surface.
+        if let Some(inverse_range_squared) = falloff.take() {
+            let kept = range_falloff(hit.t * hit.t, inverse_range_squared);
+            // What the window removes is light Bevy's lights never emit: it leaves the balance.
+            stats.emitted -= power * (1.0 - kept);
+            power *= kept;
+        }
+        let surface = snapshot.surface(origin, direction, &hit);
+        // Two-sided surfaces, as the path tracer has them: the side the photon arrives on.
+        let side = if surface.geometric_normal.dot(direction) > 0.0 { -1.0 } else { 1.0 };
+        let n = surface.geometric_normal * side;
+        let shading = surface.normal * side;
+        let albedo = if surface.diffuse.is_finite() { surface.diffuse.clamp(Vec3::ZERO, Vec3::ONE) } else { Vec3::ZERO };
+        stats.absorbed += power * (Vec3::ONE - albedo);
+        let survive = albedo.max_element();
+        if survive <= 0.0 || rng.random::<f32>() >= survive {
+            return;
+        }
+        power *= albedo / survive;
+        let position = origin + direction * hit.t;
+        let mut out = cosine_hemisphere(if shading.dot(n) > 0.1 { shading } else { n }, uniform2(rng));
+        if out.dot(n) <= 1e-4 {
+            out = cosine_hemisphere(n, uniform2(rng));
+        }
+        reflections += 1;
+        // The photon lies on the side it leaves from, in the SH cell whose faces it lights.
+        let stored_at = position + n * (layout.v_cell() * 0.01).max(epsilon);
+        if let Some(c) = layout.cell_of(stored_at) {
+            photons.push(Photon { cell: layout.index(c) as u32, direction: out, power });
+            stats.stored += 1;
+        }
+        if reflections >= params.max_reflections {
+            stats.truncated += power;
+            return;
+        }
+        origin = position + n * epsilon;
+        direction = out;
+    }
+}
+
+/// The R-grid face weights of an outgoing direction (§3.3, Fig. 2): `d_x²`, `d_y²`, `d_z²` on the faces
+/// `d` points through (they sum to one for a unit `d`).
+pub fn face_weights(d: Vec3) -> [(usize, f32); 3] {
+    [
+        (if d.x >= 0.0 { 0 } else { 1 }, d.x * d.x),
+        (if d.y >= 0.0 { 2 } else { 3 }, d.y * d.y),
+        (if d.z >= 0.0 { 4 } else { 5 }, d.z * d.z),
+    ]
+}
+
+/// Flux per face (lumens, per channel) of one R-grid cell.
+pub type CellFaces = [Vec3; FACES];
+
+/// The base level of the R-grid by the paper's atomic-free GPU algorithm (Fig. 3), on the CPU's
+/// threads: [A] the photons' cell indices, [B] sorted, [C] a flag on the first photon of each cell,
+/// [D] its exclusive scan, [E] the offset of each non-empty cell's first photon; then one task per
+/// non-empty cell sums its photons' weighted flux into its six faces.
+pub fn accumulate_sorted(photons: &[Photon], cells: usize) -> Vec<CellFaces> {
+    // [A] → [B]: (cell, photon) pairs sorted by cell (ties by photon, so the sums are reproducible).
+    let mut sorted: Vec<(u32, u32)> = photons.iter().enumerate().map(|(i, p)| (p.cell, i as u32)).collect();
+    sorted.par_sort_unstable();
+    // [C]: 1 where a photon starts a new cell.
+    let flags: Vec<u32> = (0..sorted.len()).into_par_iter().map(|i| u32::from(i == 0 || sorted[i].0 != sorted[i - 1].0)).collect();
+    // [D]: exclusive scan of the flags.
+    let mut scan = Vec::with_capacity(flags.len());
+    let mut sum = 0u32;
+    for &f in &flags {
+        scan.push(sum);
+        sum += f;
+    }
+    // [E]: the first photon of each non-empty cell.
+    let mut offsets = vec![0u32; sum as usize];
+    for i in 0..flags.len() {
+        if flags[i] == 1 {
+            offsets[scan[i] as usize] = i as u32;
+        }
+    }
+    let groups: Vec<(u32, CellFaces)> = (0..offsets.len())
+        .into_par_iter()
+        .map(|g| {
+            let start = offsets[g] as usize;
+            let end = offsets.get(g + 1).map_or(sorted.len(), |&e| e as usize);
+            let mut faces = [Vec3::ZERO; FACES];
+            for &(_, p) in &sorted[start..end] {
+                let photon = &photons[p as usize];
+                for (face, w) in face_weights(photon.direction) {
+                    faces[face] += photon.power * w;
+                }
+            }
+            (sorted[start].0, faces)
+        })
+        .collect();
+    let mut out = vec![[Vec3::ZERO; FACES]; cells];
+    for (cell, faces) in groups {
+        if let Some(slot) = out.get_mut(cell as usize) {
+            *slot = faces;
+        }
+    }
+    out
+}
+
+/// The same base level by direct accumulation, photon by photon (what a GPU would do with atomic adds):
+/// the reference the tests hold [`accumulate_sorted`] to.
+pub fn accumulate_direct(photons: &[Photon], cells: usize) -> Vec<CellFaces> {
+    let mut out = vec![[Vec3::ZERO; FACES]; cells];
+    for photon in photons {
+        if let Some(slot) = out.get_mut(photon.cell as usize) {
+            for (face, w) in face_weights(photon.direction) {
+                slot[face] += photon.power * w;
+            }
+        }
+    }
+    out
+}
+
+/// The multilevel R-grid (§3.3): face flux per cell at the SH-grid's resolution and mip levels of
+/// twice the cell size, each face the sum of its eight children's (flux is conserved; radiance, flux
+/// over the face's area, is then the children's mean over the four faces a parent face covers).
+#[derive(Clone, Debug, Default)]
+pub struct RGrid {
+    /// Level 0 first: (cells per axis, cell side in metres, faces).
+    pub levels: Vec<(UVec3, f32, Vec<CellFaces>)>,
+}
+
+impl RGrid {
+    /// Builds the levels above `base` until a level has at most two cells along its longest axis or
+    /// `max_levels` are made.
+    pub fn new(layout: GridLayout, base: Vec<CellFaces>, max_levels: usize) -> Self {
+        let mut levels = vec![(layout.dims, layout.cell, base)];
+        while levels.len() < max_levels.max(1) {
+            let (dims, cell, faces) = levels.last().unwrap();
+            if dims.max_element() <= 2 {
+                break;
+            }
+            let next = (*dims + 1) / 2;
+            let mut out = vec![[Vec3::ZERO; FACES]; (next.x * next.y * next.z) as usize];
+            for z in 0..dims.z {
+                for y in 0..dims.y {
+                    for x in 0..dims.x {
+                        let src = &faces[((z * dims.y + y) * dims.x + x) as usize];
+                        let p = UVec3::new(x, y, z) / 2;
+                        let dst = &mut out[((p.z * next.y + p.y) * next.x + p.x) as usize];
+                        for f in 0..FACES {
+                            dst[f] += src[f];
+                        }
+                    }
+                }
+            }
+            let cell = cell * 2.0;
+            levels.push((next, cell, out));
+        }
+        Self { levels }
+    }
+
+    /// Outgoing radiance (cd/m²) of the surface in the level-`level` cell containing `p`, seen on its
+    /// side facing `n` (unit): `2 Σ_j n_j² F_j / (π A)` over the three faces `n` points through. A plane
+    /// across a cell sends half its flux through the face it faces (`E[cos²] = ½` for Lambertian
+    /// directions), hence the 2: exact for such a plane, within 5 % for one at 45°.
+    pub fn radiance(&self, origin: Vec3, level: usize, p: Vec3, n: Vec3) -> Vec3 {
+        let Some((dims, cell, faces)) = self.levels.get(level) else { return Vec3::ZERO };
+        let c = ((p - origin) / *cell).floor();
+        if !c.is_finite() || c.cmplt(Vec3::ZERO).any() || c.cmpge(dims.as_vec3()).any() {
+            return Vec3::ZERO;
+        }
+        let c = c.as_uvec3();
+        let f = &faces[((c.z * dims.y + c.y) * dims.x + c.x) as usize];
+        let sum: Vec3 = face_weights(n).iter().map(|&(face, w)| f[face] * w).sum();
+        sum * (2.0 / (PI * cell * cell))
+    }
+}
+
+/// What the SH field is built with.
+#[derive(Clone, Copy, Debug)]
+pub struct FieldParams {
+    /// Directions per probe (N_sh).
+    pub directions: u32,
+    /// Distance recorded for rays that leave the grid, metres (and the largest distance kept).
+    pub max_distance: f32,
+}
+
+/// The spherical-harmonics field (§3.4): at the centres of the SH-grid's boundary cells and their 26
+/// neighbours, the incoming radiance (rgb) and the distance to the first surface (alpha) in nine
+/// coefficients (bands 0–2, the order of [`crate::sh`]).
+#[derive(Clone, Debug, Default)]
+pub struct ShField {
+    pub layout: Option<GridLayout>,
+    /// Per SH cell: its probe's index in `coefficients`, or `u32::MAX` (no probe, or one inside solid
+    /// geometry).
+    pub cell_probe: Vec<u32>,
+    /// Nine coefficients per probe.
+    pub coefficients: Vec<[Vec4; 9]>,
+    /// Probes dropped because most of their rays met the back of a surface (inside a wall or a box).
+    pub inside: u32,
+}
+
+/// How far the probe's rays see the back of surfaces before it counts as inside solid geometry.
+const INSIDE_FRACTION: f32 = 0.3;
+
+/// The incoming radiance along one probe ray and the distance to what it sees (§3.4.2–3.4.3).
+fn probe_ray(vgrid: &VGrid, rgrid: &RGrid, env: Option<&Environment>, c: Vec3, d: Vec3, params: &FieldParams) -> (Vec3, f32, bool) {
+    let layout = vgrid.layout.expect("a grid");
+    let Some((v, t)) = vgrid.march(c, d) else {
+        return (env.map_or(Vec3::ZERO, |e| e.radiance(d)), params.max_distance, false);
+    };
+    let data = vgrid.cell(v).unwrap_or_default();
+    // The V-cell's mean normal turned towards the ray (surfaces are two-sided); where its normals cancel
+    // (both faces of a thin wall, a sharp edge) the direction back along the ray.
+    let coherent = data.normal_sum.length() > 0.5 * data.area;
+    let mut n = if coherent { data.normal_sum.normalize() } else { -d };
+    let back = coherent && n.dot(d) > 0.0;
+    if back {
+        n = -n;
+    }
+    let v_cell = layout.v_cell();
+    let hit = layout.origin + (v.as_vec3() + 0.5) * v_cell;
+    // §3.4.3: the area the ray stands for on the surface, 4π d² / (N_sh cos β), picks two R-grid levels.
+    let cos_beta = n.dot(-d).max(0.25);
+    let distance = t.max(0.5 * v_cell);
+    let footprint = 4.0 * PI * distance * distance / (params.directions as f32 * cos_beta);
+    let base_area = layout.cell * layout.cell;
+    let level = (0.5 * (footprint / base_area).max(1.0).log2()).clamp(0.0, (rgrid.levels.len() - 1) as f32);
+    let (l0, frac) = (level.floor() as usize, level.fract());
+    let mut radiance = rgrid.radiance(layout.origin, l0, hit, n);
+    if frac > 0.0 && l0 + 1 < rgrid.levels.len() {
+        radiance = radiance.lerp(rgrid.radiance(layout.origin, l0 + 1, hit, n), frac);
+    }
+    (radiance, t.min(params.max_distance), back)
+}
+
+impl ShField {
+    /// Projects the incoming radiance and distance at every probe (Eq. 1 with `N_sh` directions of the
+    /// spherical Fibonacci lattice).
+    pub fn build(vgrid: &VGrid, rgrid: &RGrid, env: Option<&Environment>, params: &FieldParams) -> Self {
+        let Some(layout) = vgrid.layout else { return Self::default() };
+        let dims = layout.dims.as_ivec3();
+        // Boundary cells and their 26 neighbours.
+        let probes: Vec<usize> = (0..layout.cell_count())
+            .into_par_iter()
+            .filter(|&i| {
+                let c = layout.coords(i).as_ivec3();
+                (-1..=1).any(|z| {
+                    (-1..=1).any(|y| {
+                        (-1..=1).any(|x| {
+                            let n = c + IVec3::new(x, y, z);
+                            n.cmpge(IVec3::ZERO).all() && n.cmplt(dims).all() && vgrid.sh_boundary[layout.index(n.as_uvec3())]
+                        })
+                    })
+                })
+            })
+            .collect();
+        let n = params.directions.max(1);
+        let directions: Vec<Vec3> = (0..n).map(|i| fibonacci_sphere(i, n)).collect();
+        let weight = 4.0 * PI / n as f32;
+        let projected: Vec<Option<[Vec4; 9]>> = probes
+            .par_iter()
+            .map(|&i| {
+                let c = layout.centre(layout.coords(i));
+                let mut coefficients = [Vec4::ZERO; 9];
+                let mut back = 0u32;
+                for &d in &directions {
+                    let (radiance, distance, backface) = probe_ray(vgrid, rgrid, env, c, d, params);
+                    back += u32::from(backface);
+                    let value = radiance.extend(distance) * weight;
+                    let y = basis(d);
+                    for k in 0..9 {
+                        coefficients[k] += value * y[k];
+                    }
+                }
+                let finite = coefficients.iter().all(|c| c.is_finite());
+                (finite && (back as f32) < INSIDE_FRACTION * n as f32).then_some(coefficients)
+            })
+            .collect();
+        let mut cell_probe = vec![u32::MAX; layout.cell_count()];
+        let mut coefficients = Vec::with_capacity(probes.len());
+        let mut inside = 0;
+        for (&i, p) in probes.iter().zip(projected) {
+            match p {
+                Some(c) => {
+                    cell_probe[i] = coefficients.len() as u32;
+                    coefficients.push(c);
+                }
+                None => inside += 1,
+            }
+        }
+        Self { layout: Some(layout), cell_probe, coefficients, inside }
+    }
+
+    /// The interpolated coefficients at `x` on a surface with unit normal `n` (§4.1): the probes of the
+    /// 27 cells around `x` weighted by `w_sh(d) = 2d³/r³ − 3d²/r² + 1` (`r = r_max`), times a weight that
+    /// drops the probes behind the surface (see the module docs). `None` where no probe is near.
+    pub fn coefficients_at(&self, x: Vec3, n: Vec3, r_max: f32) -> Option<[Vec4; 9]> {
+        let layout = self.layout?;
+        let base = ((x - layout.origin) / layout.cell).floor().as_ivec3();
+        let dims = layout.dims.as_ivec3();
+        let mut sum = [Vec4::ZERO; 9];
+        let mut total = 0.0;
+        for z in -1..=1 {
+            for y in -1..=1 {
+                for xx in -1..=1 {
+                    let c = base + IVec3::new(xx, y, z);
+                    if c.cmplt(IVec3::ZERO).any() || c.cmpge(dims).any() {
+                        continue;
+                    }
+                    let probe = self.cell_probe[layout.index(c.as_uvec3())];
+                    if probe == u32::MAX {
+                        continue;
+                    }
+                    let p = layout.centre(c.as_uvec3());
+                    let w = sh_weight((p - x).length(), r_max) * side_weight(n.dot(p - x) / layout.cell);
+                    if w > 0.0 {
+                        for k in 0..9 {
+                            sum[k] += self.coefficients[probe as usize][k] * w;
+                        }
+                        total += w;
+                    }
+                }
+            }
+        }
+        (total > 1e-6).then(|| sum.map(|c| c / total))
+    }
+
+    /// Irradiance over π (`E/π`, the frame's unit) at `x` facing `n`: the clamped-cosine integral of the
+    /// interpolated radiance, exact for the nine coefficients (what the paper's `N_d` hemisphere samples
+    /// of §4.2 estimate).
+    pub fn irradiance(&self, x: Vec3, n: Vec3, r_max: f32) -> Vec3 {
+        let Some(c) = self.coefficients_at(x, n, r_max) else { return Vec3::ZERO };
+        let y = basis(n);
+        let e: Vec3 = (0..9).map(|k| c[k].truncate() * (COSINE_LOBE[band(k)] * y[k])).sum();
+        (e / PI).max(Vec3::ZERO)
+    }
+}
+
+/// The paper's distance weight `w_sh(d) = 2d³/r³ − 3d²/r² + 1` for `d < r`, else 0 (§4.1).
+pub fn sh_weight(d: f32, r_max: f32) -> f32 {
+    if d >= r_max {
+        return 0.0;
+    }
+    let t = d / r_max;
+    2.0 * t * t * t - 3.0 * t * t + 1.0
+}
+
+/// Weight of a probe at signed distance `s` cells in front of the surface (along its normal): 0 from a
+/// quarter cell behind, 1 from half a cell in front.
+pub fn side_weight(s: f32) -> f32 {
+    ((s + 0.25) / 0.75).clamp(0.0, 1.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::{InputTriangle, SnapshotLightEntry, SnapshotMaterial};
+    use bevy::prelude::Entity;
+
+    fn quad(corners: [Vec3; 4], material: u32) -> [InputTriangle; 2] {
+        [
+            InputTriangle::flat([corners[0], corners[1], corners[2]], material),
+            InputTriangle::flat([corners[0], corners[2], corners[3]], material),
+        ]
+    }
+
+    fn sun(direction: Vec3, lux: f32) -> SnapshotLightEntry {
+        SnapshotLightEntry {
+            entity: Entity::PLACEHOLDER,
+            light: SnapshotLight::Directional { direction: direction.normalize(), illuminance: Vec3::splat(lux) },
+            shadows_enabled: true,
+        }
+    }
+
+    fn grey(albedo: f32) -> SnapshotMaterial {
+        SnapshotMaterial { diffuse: Vec3::splat(albedo), ..SnapshotMaterial::DEFAULT_GREY }
+    }
+
+    /// A closed box of side `2h` (inward and outward faces: single-sided quads, two-sided to photons) with
+    /// a point light inside.
+    fn closed_box(h: f32, albedo: f32) -> SceneSnapshot {
+        let mut triangles = Vec::new();
+        for axis in 0..3 {
+            for sign in [-1.0f32, 1.0] {
+                let n = Vec3::AXES[axis] * sign;
+                let (u, v) = (Vec3::AXES[(axis + 1) % 3] * h, Vec3::AXES[(axis + 2) % 3] * h);
+                let c = n * h;
+                triangles.extend(quad([c - u - v, c + u - v, c + u + v, c - u + v], 0));
+            }
+        }
+        let light = SnapshotLightEntry {
+            entity: Entity::PLACEHOLDER,
+            light: SnapshotLight::Point { position: Vec3::new(0.2, 0.1, -0.3), intensity: Vec3::splat(100.0), inverse_range_squared: 0.0 },
+            shadows_enabled: true,
+        };
+        SceneSnapshot::build(triangles, vec![grey(albedo)], vec![], vec![light])
+    }
+
+    fn trace(snapshot: &SceneSnapshot, photons: u32, reflections: u32, resolution: u32) -> (GridLayout, Vec<Photon>, PhotonStats) {
+        let (lo, hi) = snapshot.bounds().unwrap();
+        let layout = GridLayout::fit(lo, hi, resolution);
+        let lights: Vec<_> = snapshot.lights.iter().map(|l| l.light).collect();
+        let params = TraceParams { photons, max_reflections: reflections, seed: 7, exposure: 1.0 };
+        let (list, stats) = trace_photons(snapshot, &lights, snapshot.environment.as_deref(), layout, &params);
+        (layout, list, stats)
+    }
+
+    fn relative(a: Vec3, b: Vec3) -> f32 {
+        ((a - b).abs() / b.abs().max(Vec3::splat(1e-9))).max_element()
+    }
+
+    #[test]
+    fn photon_flux_is_conserved_emitted_equals_absorbed_escaped_and_truncated() {
+        // Closed box: nothing escapes; everything emitted is absorbed or left at the last reflection.
+        let snapshot = closed_box(1.0, 0.6);
+        let (_, photons, s) = trace(&snapshot, 60_000, 4, 8);
+        // (Rays through the quads' shared edges may slip out: one in tens of thousands.)
+        assert!(s.escaped.max_element() < 1e-3 * s.emitted.max_element(), "{s:?}");
+        let balance = s.absorbed + s.escaped + s.truncated;
+        assert!(relative(balance, s.emitted) < 0.02, "{s:?}");
+        // A point light of 100 cd emits 400π lm; the truncated share is ρ⁴ of the emission in expectation.
+        assert!(relative(s.emitted, Vec3::splat(400.0 * PI)) < 1e-3, "{s:?}");
+        assert!(relative(s.truncated, s.emitted * 0.6f32.powi(4)) < 0.05, "{s:?}");
+        // Stored photons: ρ + ρ² + ρ³ + ρ⁴ of the paths (every photon hits the walls).
+        let expected = 60_000.0 * (0.6 + 0.36 + 0.216 + 0.1296);
+        assert!((photons.len() as f32 / expected - 1.0).abs() < 0.02, "{} against {expected}", photons.len());
+        // An open floor under the sun: what it does not absorb escapes.
+        let floor = SceneSnapshot::build(
+            quad([Vec3::new(-2.0, 0.0, -2.0), Vec3::new(-2.0, 0.0, 2.0), Vec3::new(2.0, 0.0, 2.0), Vec3::new(2.0, 0.0, -2.0)], 0),
+            vec![grey(0.5)],
+            vec![],
+            vec![sun(Vec3::new(0.3, -1.0, 0.2), 1000.0)],
+        );
+        let (_, photons, s) = trace(&floor, 40_000, 4, 8);
+        assert!(relative(s.absorbed + s.escaped + s.truncated, s.emitted) < 0.02, "{s:?}");
+        assert!(s.truncated.max_element() == 0.0 && s.escaped.max_element() > 0.0, "{s:?}");
+        // The photons that hit the floor reflect half: stored flux is ρ × the floor's irradiance × area.
+        let stored: Vec3 = photons.iter().map(|p| p.power).sum();
+        let cos = Vec3::new(0.3, -1.0, 0.2).normalize().y.abs();
+        let expected = 0.5 * 1000.0 * cos * 16.0;
+        assert!(relative(stored, Vec3::splat(expected)) < 0.03, "{stored} against {expected}");
+    }
+
+    #[test]
+    fn r_grid_face_weights_sum_to_one() {
+        for i in 0..500 {
+            let d = fibonacci_sphere(i, 500);
+            let w = face_weights(d);
+            let sum: f32 = w.iter().map(|(_, w)| w).sum();
+            assert!((sum - 1.0).abs() < 1e-5, "{d} {w:?}");
+            // Each face it points through, one per axis.
+            assert_eq!(w.map(|(f, _)| f / 2), [0, 1, 2]);
+            for (f, weight) in w {
+                let axis = Vec3::AXES[f / 2] * if f % 2 == 0 { 1.0 } else { -1.0 };
+                assert!(weight == 0.0 || axis.dot(d) >= 0.0);
+            }
+        }
+    }
+
+    #[test]
+    fn the_sort_based_r_grid_equals_direct_accumulation() {
+        let snapshot = closed_box(1.0, 0.7);
+        let (layout, photons, _) = trace(&snapshot, 20_000, 4, 6);
+        let sorted = accumulate_sorted(&photons, layout.cell_count());
+        let direct = accumulate_direct(&photons, layout.cell_count());
+        assert_eq!(sorted.len(), direct.len());
+        let mut nonempty = 0;
+        for (a, b) in sorted.iter().zip(&direct) {
+            for f in 0..FACES {
+                // Same sums in another order: float rounding only.
+                assert!((a[f] - b[f]).abs().max_element() <= 1e-4 * b[f].abs().max_element().max(1e-3), "{a:?} {b:?}");
+            }
+            nonempty += usize::from(b.iter().any(|v| v.max_element() > 0.0));
+        }
+        assert!(nonempty > 20, "{nonempty} non-empty cells");
+        // Flux is conserved from level to level.
+        let rgrid = RGrid::new(layout, sorted, 4);
+        let total = |faces: &Vec<CellFaces>| faces.iter().flatten().copied().sum::<Vec3>();
+        let base = total(&rgrid.levels[0].2);
+        for level in &rgrid.levels[1..] {
+            assert!(relative(total(&level.2), base) < 1e-4);
+        }
+        assert!(rgrid.levels.len() >= 2);
+        // An empty list gives an empty grid.
+        assert!(accumulate_sorted(&[], 8).iter().flatten().all(|v| *v == Vec3::ZERO));
+    }
+
+    #[test]
+    fn sh_projection_of_a_known_field_recovers_its_coefficients_and_irradiance() {
+        // L(ω) = 2 + 3 ω_z + ω_x ω_y, projected by Eq. 1 over the Fibonacci lattice.
+        let n = 400;
+        let field = |d: Vec3| 2.0 + 3.0 * d.z + d.x * d.y;
+        let mut c = [0.0f32; 9];
+        for i in 0..n {
+            let d = fibonacci_sphere(i, n);
+            let y = basis(d);
+            for k in 0..9 {
+                c[k] += field(d) * y[k] * 4.0 * PI / n as f32;
+            }
+        }
+        let sqrt_pi = PI.sqrt();
+        let expected = [2.0 * 2.0 * sqrt_pi, 0.0, 3.0 * 2.0 * sqrt_pi / 3f32.sqrt(), 0.0, 2.0 * sqrt_pi / 15f32.sqrt(), 0.0, 0.0, 0.0, 0.0];
+        for k in 0..9 {
+            assert!((c[k] - expected[k]).abs() < 0.01 * expected[0], "coefficient {k}: {} against {}", c[k], expected[k]);
+        }
+        // The clamped-cosine integral facing +z: ∫ (2 + 3 cos θ) cos θ dω = 2π + 2π = 4π (ω_x ω_y adds 0).
+        let e: f32 = (0..9).map(|k| c[k] * COSINE_LOBE[band(k)] * basis(Vec3::Z)[k]).sum();
+        assert!((e / (4.0 * PI) - 1.0).abs() < 0.01, "{e}");
+    }
+
+    /// A lit floor of albedo ρ under the sun, and the probes' view of it: the irradiance on a surface
+    /// facing down just above the floor is its radiance × π = ρE (cos-weighted over the hemisphere).
+    #[test]
+    fn a_surface_facing_a_lit_floor_receives_its_radiance_times_pi() {
+        let floor = quad([Vec3::new(-8.0, 0.0, -8.0), Vec3::new(-8.0, 0.0, 8.0), Vec3::new(8.0, 0.0, 8.0), Vec3::new(8.0, 0.0, -8.0)], 0);
+        // A small tile at height 4 m so that the grid spans the space above the floor.
+        let marker = quad([Vec3::new(-0.1, 4.0, -0.1), Vec3::new(0.1, 4.0, -0.1), Vec3::new(0.1, 4.0, 0.1), Vec3::new(-0.1, 4.0, 0.1)], 0);
+        let snapshot = SceneSnapshot::build(floor.into_iter().chain(marker), vec![grey(0.5)], vec![], vec![sun(Vec3::NEG_Y, 1000.0)]);
+        let (layout, photons, _) = trace(&snapshot, 400_000, 1, 16);
+        let vgrid = VGrid::build(&snapshot, layout);
+        let rgrid = RGrid::new(layout, accumulate_sorted(&photons, layout.cell_count()), 5);
+        // The R-grid reads the floor's radiance ρE/π where a ray meets it from above.
+        let l = rgrid.radiance(layout.origin, 0, Vec3::new(0.3, 0.01, 0.2), Vec3::Y);
+        let truth = 0.5 * 1000.0 / PI;
+        assert!((l.x / truth - 1.0).abs() < 0.1, "{l} against {truth}");
+        // A 45° plane: within 5 % of its radiance by the face flux read at its normal.
+        let field = ShField::build(&vgrid, &rgrid, None, &FieldParams { directions: 512, max_distance: 100.0 });
+        assert!(!field.coefficients.is_empty());
+        // E/π on a patch 0.5 m above the floor, facing down, away from the rim: ρE/π.
+        let e = field.irradiance(Vec3::new(0.4, 0.5, -0.3), Vec3::NEG_Y, 1.75 * layout.cell);
+        assert!((e.x / truth - 1.0).abs() < 0.1, "E/π {e} against {truth}");
+        // Facing up, the sun's direct light is Bevy's: the field sees only the sky-less void above.
+        let up = field.irradiance(Vec3::new(0.4, 0.5, -0.3), Vec3::Y, 1.75 * layout.cell);
+        assert!(up.x < 0.02 * truth, "{up}");
+    }
+
+    #[test]
+    fn a_tilted_plane_reads_its_radiance_within_five_percent() {
+        // Lambertian photons leaving a plane at 45° to the axes through one cell: L = 2 Σ n_j² F_j / (π A)
+        // against Φ / (π S), S the plane's area inside the cell (√2 A for this cut).
+        let n = Vec3::new(1.0, 1.0, 0.0).normalize();
+        let count = 200_000;
+        let mut rng = rng_for(3, 0);
+        let photons: Vec<Photon> =
+            (0..count).map(|_| Photon { cell: 0, direction: cosine_hemisphere(n, uniform2(&mut rng)), power: Vec3::ONE }).collect();
+        let layout = GridLayout { origin: Vec3::ZERO, cell: 1.0, dims: UVec3::ONE };
+        let rgrid = RGrid::new(layout, accumulate_sorted(&photons, 1), 1);
+        let l = rgrid.radiance(Vec3::ZERO, 0, Vec3::splat(0.5), n);
+        let truth = count as f32 / (PI * 2f32.sqrt());
+        assert!((l.x / truth - 1.0).abs() < 0.05, "{l} against {truth}");
+        // The paper's face value (flux over the face's area, no factor) reads half of a facing plane's.
+        let flat: Vec<Photon> =
+            (0..count).map(|_| Photon { cell: 0, direction: cosine_hemisphere(Vec3::Y, uniform2(&mut rng)), power: Vec3::ONE }).collect();
+        let faces = accumulate_direct(&flat, 1);
+        assert!((faces[0][2].x / count as f32 - 0.5).abs() < 0.01);
+    }
+
+    #[test]
+    fn bad_input_gives_finite_empty_or_zero_output() {
+        // No light, a NaN light, a degenerate triangle: nothing stored, nothing non-finite.
+        let mut snapshot = closed_box(1.0, 0.5);
+        snapshot.lights[0].light = SnapshotLight::Point { position: Vec3::NAN, intensity: Vec3::splat(f32::INFINITY), inverse_range_squared: 0.0 };
+        let (layout, photons, stats) = trace(&snapshot, 5_000, 4, 8);
+        assert!(photons.iter().all(|p| p.power.is_finite() && p.direction.is_finite()));
+        assert!(stats.emitted.is_finite());
+        let vgrid = VGrid::build(&snapshot, layout);
+        let rgrid = RGrid::new(layout, accumulate_sorted(&photons, layout.cell_count()), 4);
+        let field = ShField::build(&vgrid, &rgrid, None, &FieldParams { directions: 64, max_distance: 10.0 });
+        assert!(field.coefficients.iter().flatten().all(|c| c.is_finite()));
+        for i in 0..50 {
+            let e = field.irradiance(Vec3::splat(i as f32 * 0.03 - 0.7), fibonacci_sphere(i, 50), 1.75 * layout.cell);
+            assert!(e.is_finite() && e.min_element() >= 0.0);
+        }
+        // An empty scene.
+        let empty = SceneSnapshot::default();
+        let (list, stats) = trace_photons(&empty, &[], None, GridLayout::fit(Vec3::ZERO, Vec3::ONE, 4), &TraceParams { photons: 10, max_reflections: 4, seed: 0, exposure: 1.0 });
+        assert!(list.is_empty() && stats == PhotonStats::default());
+    }
+
+    #[test]
+    fn probes_inside_a_closed_box_are_dropped_and_rays_stop_at_walls() {
+        let mut triangles = Vec::new();
+        // A solid 1 m cube (outward faces) in a 4 m room (inward faces).
+        for (h, sign, material) in [(0.5f32, 1.0f32, 0), (2.0, -1.0, 0)] {
+            for axis in 0..3 {
+                for s in [-1.0f32, 1.0] {
+                    let n = Vec3::AXES[axis] * s;
+                    let (u, v) = (Vec3::AXES[(axis + 1) % 3] * h, Vec3::AXES[(axis + 2) % 3] * h);
+                    let c = n * h;
+                    let q = quad([c - u - v, c + u - v, c + u + v, c - u + v], material);
+                    // Orient each quad's normal outward (sign 1) or inward (sign −1).
+                    for t in q {
+                        let p = t.positions;
+                        let facing = (p[1] - p[0]).cross(p[2] - p[0]).dot(n) * sign;
+                        triangles.push(if facing >= 0.0 { t } else { InputTriangle::flat([p[0], p[2], p[1]], material) });
+                    }
+                }
+            }
+        }
+        let snapshot = SceneSnapshot::build(triangles, vec![grey(0.5)], vec![], vec![]);
+        let layout = GridLayout::fit(Vec3::splat(-2.0), Vec3::splat(2.0), 16);
+        let vgrid = VGrid::build(&snapshot, layout);
+        // From the room towards the cube, the ray stops at the cube's face (x = 0.5), within a V-cell.
+        let (_, t) = vgrid.march(Vec3::new(1.6, 0.1, 0.05), Vec3::NEG_X).expect("a hit");
+        assert!((t - 1.1).abs() <= layout.v_cell() * 1.01, "{t}");
+        // Through empty SH cells in one step, it still finds the far wall.
+        let (_, t) = vgrid.march(Vec3::new(1.0, 1.2, 1.0), Vec3::Y).expect("the ceiling");
+        assert!((t - 0.8).abs() <= layout.v_cell() * 1.01, "{t}");
+        let rgrid = RGrid::new(layout, vec![[Vec3::ZERO; FACES]; layout.cell_count()], 3);
+        let field = ShField::build(&vgrid, &rgrid, None, &FieldParams { directions: 128, max_distance: 10.0 });
+        let probe = |p: Vec3| field.cell_probe[layout.index(layout.cell_of(p).unwrap())];
+        assert_eq!(probe(Vec3::new(0.05, 0.05, 0.05)), u32::MAX, "the cube's centre");
+        assert_ne!(probe(Vec3::new(0.8, 0.1, 0.1)), u32::MAX, "the room by the cube");
+        // Far from every surface there is no probe (§3.1: only boundary cells and their neighbours).
+        assert_eq!(probe(Vec3::new(1.2, 1.2, 1.2)), u32::MAX, "the middle of the room");
+        assert!(field.inside > 0);
+    }
+}

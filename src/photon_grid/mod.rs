@@ -1,0 +1,466 @@
+//! The photon grid and spherical-harmonics field (Chang, Park & Ihm, "Ray Tracing-based Interactive
+//! Diffuse Indirect Illumination"): photons traced from every light, many bounces deep, turned into the
+//! reflected radiance on the faces of a grid and from there into a field of incoming radiance in
+//! spherical harmonics around the surfaces, which each pixel gathers. It needs no reflective shadow map
+//! and no volume: the grid covers the scene; emissive meshes and the camera's environment map light it
+//! too. The plugin's multi-bounce method for large, mostly indirectly lit spaces.
+//!
+//! ```no_run
+//! # use bevy::prelude::*;
+//! # use bevy_diffuse_gi::prelude::*;
+//! # fn setup(mut commands: Commands) {
+//! commands.spawn((Camera3d::default(), DiffuseGi { method: GiMethod::PhotonGrid, ..default() }, PhotonGridSettings::MEDIUM));
+//! commands.spawn((SpotLight { shadow_maps_enabled: true, ..default() }, GiLight::default()));
+//! # }
+//! ```
+//!
+//! # Algorithm (the preparation stage, §3, on the CPU with rayon: [`grid`])
+//! 1. **Grids** (§3.1): the scene's box is cut into cubic SH-grid cells,
+//!    [`resolution`](PhotonGridSettings::resolution) along its longest side, and each into 4 × 4 × 4
+//!    V-grid cells. Every triangle marks the V-cells it overlaps (a triangle–box test) as *boundary
+//!    cells*, which keep the area-weighted sum of their triangles' normals; an SH cell is a boundary
+//!    cell when one of its V-cells is.
+//! 2. **Photons** (§3.2): [`photons`](PhotonGridSettings::photons) photons leave the GI lights (every
+//!    kind: points over the sphere, spots over their cone with Bevy's falloff, directional lights
+//!    through a disc before the scene), the emissive triangles (by power) and the environment map, in
+//!    proportion to their flux. At each surface the photon is reflected by Russian roulette on the
+//!    diffuse albedo (textures included) into a cosine-distributed direction; a reflected photon is
+//!    stored in the *global photon list* with that outgoing direction, the flux it leaves with and its
+//!    SH cell, up to [`max_reflections`](PhotonGridSettings::max_reflections) (four, the paper's) per
+//!    path. Emission is stored where it leaves an emitter.
+//! 3. **R-grid** (§3.3, Fig. 3): the list is sorted by cell ([A] → [B]), the first photon of each cell
+//!    flagged ([C]), the flags scanned ([D]) into the offsets of each non-empty cell ([E]), and one task
+//!    per non-empty cell sums its photons' flux into the six faces of the cell with the weights
+//!    `d_x², d_y², d_z²` of the faces the outgoing direction `d` points through (Fig. 2), without
+//!    atomics. Coarser levels sum 2 × 2 × 2 cells.
+//! 4. **SH field** (§3.4): at the centre of every boundary SH cell and its 26 neighbours,
+//!    [`sh_directions`](PhotonGridSettings::sh_directions) (`N_sh`) rays of a spherical Fibonacci
+//!    lattice cross the grid (empty SH cells in one step, then V-cell by V-cell: the two-level
+//!    traversal of §3.4.2) to the first boundary V-cell, and read the R-grid there at the level whose
+//!    face area bounds the ray's footprint `4π d² / (N_sh cos β)` (§3.4.3, interpolated between two
+//!    levels). Rays that leave the grid see the environment map. The radiance and the distance are
+//!    projected on nine SH coefficients (bands 0–2) by Eq. 1 (§3.4.4: the distance is the fourth
+//!    component).
+//! 5. **Final gather** (§4, `shaders/photon_grid/gather.wgsl`, per pixel of each view): the
+//!    coefficients of the 27 cells around the pixel's surface point, weighted by
+//!    `w_sh(d) = 2d³/r³ − 3d²/r² + 1` with `r` = [`r_max`](PhotonGridSettings::r_max) cells (1.75, the
+//!    paper's), then the hemisphere integral of §4.2 with the pixel's G-buffer normal, either by the
+//!    paper's `N_d` sample directions ([`gather_samples`](PhotonGridSettings::gather_samples)) or exactly
+//!    with the clamped-cosine convolution of the nine coefficients (`N_d = 0`). The obscurance of §4.4
+//!    from the distance field is optional ([`obscurance_distance`](PhotonGridSettings::obscurance_distance)).
+//!    The frame's filter, upsampling and composite do the rest.
+//!
+//! # Where this departs from the paper, and why
+//! * **Bevy's rasteriser** sees the primary surfaces, and the preparation runs on the CPU's threads
+//!   (with the snapshot's BVH for photons), not in CUDA: see *Cost*.
+//! * **Face radiance**: the paper's face value `Σ f_r δ Φ / A` reads a Lambertian plane across a cell at
+//!   half its radiance (only half the flux of cosine-distributed directions leaves through the face it
+//!   faces: `E[cos²θ] = ½`), and its blend of visible faces by the angle to their centres reads a floor
+//!   seen at 45° at 0.6 of that. Here the ray reads the face flux at the hit V-cell's own normal (turned
+//!   towards the ray), `L = 2 Σ_j n_j² F_j / (π A)`: exact for a plane across a cell, within 5 % at
+//!   45° (unit tests). The V-cell normal is what the paper uses to decide visibility.
+//! * **Two-sided surfaces**, as in the path tracer: a ray stops at any boundary V-cell. A probe whose
+//!   rays meet the back of surfaces in more than 30 % of directions lies inside solid geometry and is
+//!   dropped, and the gather weighs the probes by a *side weight* that fades out those behind the
+//!   surface (0 from a quarter cell behind, 1 from half a cell in front), which keeps a room's light
+//!   from leaking through a wall thinner than a cell.
+//! * **The gather's integral** is exact for the nine coefficients by default; the paper's 32 uniform
+//!   directions estimate the same integral with noise.
+//! * **Glossy reflection** of indirect light (§4.3) is not done: the frame carries diffuse irradiance
+//!   only.
+//!
+//! # Cost
+//! Nothing runs without an active camera using [`GiMethod::PhotonGrid`](crate::camera::GiMethod).
+//! Work happens in `PostUpdate` on the main thread's rayon pool, and only when its inputs change: the
+//! V-grid when geometry changes, photons, R-grid and SH field when geometry or lighting does (as the
+//! paper, which redoes all four every frame). [`PhotonGridActivity`] and the diagnostics
+//! `diffuse_gi/photon_{voxelize,trace,rgrid,field}` report the paper's Table 1 stages (main-thread
+//! milliseconds); the gather is the GPU span `diffuse_gi/photon_gather`.
+//!
+//! # Measured
+//! See `docs/photon_grid.md` (regenerated by `cargo run --release --example photon_grid_report`).
+//!
+//! # Known issues
+//! * The preparation runs on the CPU: a moving mesh or light costs the whole preparation (seconds at
+//!   the high preset) and the light lags while it runs.
+//! * A wall thinner than a V-cell has both faces in one V-cell; the light on each side still comes
+//!   from the face flux of that side, but a probe in that cell sees the wall from both sides.
+//! * One grid over the whole scene: a 50 m scene at 32 cells has 1.6 m cells.
+
+pub mod grid;
+mod render;
+
+use std::sync::Arc;
+
+use bevy::camera::Exposure;
+use bevy::diagnostic::{Diagnostic, DiagnosticPath, Diagnostics, RegisterDiagnostic};
+use bevy::prelude::*;
+use bevy::render::RenderApp;
+use bevy::render::extract_resource::{ExtractResource, ExtractResourcePlugin};
+use bevy::render::render_resource::ShaderType;
+
+use crate::camera::{DiffuseGi, GiMethod};
+use crate::light::GiLight;
+use crate::scene::{SceneSnapshot, SceneSnapshotSystems};
+use crate::settings::{Clamped, GiSettings};
+use grid::{FieldParams, GridLayout, PhotonStats, RGrid, ShField, TraceParams, VGrid};
+
+/// The settings of the photon grid, on a camera with [`DiffuseGi`](crate::camera::DiffuseGi)
+/// `{ method: GiMethod::PhotonGrid, .. }`. A camera without it uses [`PhotonGridSettings::default`] (the
+/// medium preset). The field is the scene's, not the view's: with several photon-grid cameras, the first
+/// active one's settings apply. Invalid values are clamped to their range with one warning.
+#[derive(Component, Reflect, Clone, Debug, PartialEq)]
+#[reflect(Component, Default, Clone)]
+pub struct PhotonGridSettings {
+    /// SH-grid cells along the longest side of the scene's bounding box (the V-grid has four times as
+    /// many; one more cell pads each side). Range 4–96; low 16, medium 32 (the default, the paper's for
+    /// rooms), high 64 (the paper's for Sponza). Cost: memory and voxelisation grow with the cube; the
+    /// field's probes with the square (they follow the surfaces).
+    pub resolution: u32,
+    /// Photons emitted per update over all sources. Range 1 024 – 4 194 304; low 65 536, medium 262 144
+    /// (the paper's), high 1 048 576. Cost: linear (tracing and the R-grid's sort).
+    pub photons: u32,
+    /// Stored reflections per photon path (the final gather adds one more bounce). Range 1–8; default 4
+    /// (the paper's). Cost: at most linear, fewer with dark surfaces (Russian roulette).
+    pub max_reflections: u32,
+    /// Ray directions per SH probe (`N_sh`). Range 16–2048; low 128, medium 256, high 400 (the
+    /// paper's). Cost: linear in the field's construction.
+    pub sh_directions: u32,
+    /// Hemisphere directions of the final gather (`N_d`, §4.2); 0 integrates the nine coefficients
+    /// exactly. Range 0–256; default 0. Cost: per pixel, linear (0 costs about as much as 4).
+    pub gather_samples: u32,
+    /// Extent of the gather's distance weight `w_sh`, in SH cells. Range 1–3; default 1.75 (the
+    /// paper's). Cost: none.
+    pub r_max: f32,
+    /// Distance in metres at which the obscurance of §4.4 (`ρ(d) = min(d / D, 1)` over the distance
+    /// field) stops darkening; 0 turns it off. Range 0–1000; default 0 (it is not physically based).
+    /// Cost: per pixel, a second pass over the gather's directions.
+    pub obscurance_distance: f32,
+    /// Multiplies the indirect light. Range 0–1000; default 1. Cost: none.
+    pub intensity: f32,
+}
+
+impl PhotonGridSettings {
+    /// 16 cells, 65 536 photons, 128 probe directions.
+    pub const LOW: Self = Self {
+        resolution: 16,
+        photons: 65_536,
+        max_reflections: 4,
+        sh_directions: 128,
+        gather_samples: 0,
+        r_max: 1.75,
+        obscurance_distance: 0.0,
+        intensity: 1.0,
+    };
+    /// 32 cells, 262 144 photons, 256 probe directions (the default).
+    pub const MEDIUM: Self = Self { resolution: 32, photons: 262_144, sh_directions: 256, ..Self::LOW };
+    /// 64 cells, 1 048 576 photons, 400 probe directions.
+    pub const HIGH: Self = Self { resolution: 64, photons: 1_048_576, sh_directions: 400, ..Self::LOW };
+}
+
+impl Default for PhotonGridSettings {
+    fn default() -> Self {
+        Self::MEDIUM
+    }
+}
+
+impl GiSettings for PhotonGridSettings {
+    const NAME: &'static str = "PhotonGridSettings";
+
+    fn sanitized(&self) -> (Self, Vec<(&'static str, String)>) {
+        let mut s = self.clone();
+        let mut c = Clamped::default();
+        c.uint(&mut s.resolution, 4, 96, "resolution");
+        c.uint(&mut s.photons, 1024, 4_194_304, "photons");
+        c.uint(&mut s.max_reflections, 1, 8, "max_reflections");
+        c.uint(&mut s.sh_directions, 16, 2048, "sh_directions");
+        c.uint(&mut s.gather_samples, 0, 256, "gather_samples");
+        c.float(&mut s.r_max, 1.0, 3.0, 1.75, "r_max");
+        c.float(&mut s.obscurance_distance, 0.0, 1000.0, 0.0, "obscurance_distance");
+        c.float(&mut s.intensity, 0.0, 1000.0, 1.0, "intensity");
+        (s, c.fields)
+    }
+}
+
+/// The grid the gather reads (`PhotonGridUniform` in `shaders/photon_grid/gather.wgsl`).
+#[derive(ShaderType, Clone, Copy, Debug, Default, PartialEq)]
+pub struct PhotonGridUniform {
+    /// World position of the grid's minimum corner.
+    pub origin: Vec3,
+    /// SH-grid cell side, metres.
+    pub cell_size: f32,
+    /// SH-grid cells per axis.
+    pub dims: UVec3,
+    /// `w_sh`'s extent, metres.
+    pub r_max: f32,
+    pub intensity: f32,
+    /// `N_d`; 0: the exact integral.
+    pub gather_samples: u32,
+    /// Obscurance distance, metres; 0: off.
+    pub obscurance_distance: f32,
+    pub probes: u32,
+}
+
+/// The field the frame gathers from. Extracted to the render world.
+#[derive(Resource, Clone, Debug, Default, ExtractResource)]
+pub struct PhotonGridOutput {
+    /// Bumped whenever the field changes.
+    pub generation: u64,
+    pub grid: PhotonGridUniform,
+    /// Per SH cell: its probe, or `u32::MAX`.
+    pub cell_probe: Arc<Vec<u32>>,
+    /// Nine `vec4`s per probe: radiance SH (rgb, cd/m² before exposure) and distance SH (a, metres).
+    pub coefficients: Arc<Vec<Vec4>>,
+}
+
+/// Main-thread milliseconds of the preparation's stages (the paper's Table 1 rows).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PhotonGridTimes {
+    pub voxelize_ms: f32,
+    pub trace_ms: f32,
+    pub rgrid_ms: f32,
+    pub field_ms: f32,
+}
+
+/// What the last update did, for the panel, the tools and the tests.
+#[derive(Resource, Clone, Debug, Default, PartialEq)]
+pub struct PhotonGridActivity {
+    /// SH cells per axis.
+    pub dims: UVec3,
+    /// Boundary V-cells and SH cells.
+    pub boundary_v_cells: usize,
+    pub boundary_sh_cells: usize,
+    /// Probes of the field, and those dropped inside solid geometry.
+    pub probes: usize,
+    pub inside: u32,
+    /// The photon list and where the flux went.
+    pub photons: usize,
+    pub stats: PhotonStats,
+    /// The stages of the last update, ms (zero for one that did not run).
+    pub times: PhotonGridTimes,
+    /// Updates so far.
+    pub updates: u64,
+}
+
+/// The main-world state: the grids and what they were built from.
+#[derive(Resource, Default)]
+pub struct PhotonGridState {
+    pub vgrid: VGrid,
+    pub field: ShField,
+    voxels_key: Option<(u64, u32)>,
+    field_key: Option<FieldKey>,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+struct FieldKey {
+    geometry: u64,
+    lights: u64,
+    gi_lights: Vec<Entity>,
+    exposure: u32,
+    environment: u64,
+    settings: PhotonGridSettings,
+}
+
+pub const DIAGNOSTIC_VOXELIZE: DiagnosticPath = DiagnosticPath::const_new("diffuse_gi/photon_voxelize");
+pub const DIAGNOSTIC_TRACE: DiagnosticPath = DiagnosticPath::const_new("diffuse_gi/photon_trace");
+pub const DIAGNOSTIC_RGRID: DiagnosticPath = DiagnosticPath::const_new("diffuse_gi/photon_rgrid");
+pub const DIAGNOSTIC_FIELD: DiagnosticPath = DiagnosticPath::const_new("diffuse_gi/photon_field");
+
+/// The photon grid: settings validation, the CPU preparation, the per-view gather. Added by
+/// [`crate::DiffuseGiPlugin`].
+pub struct PhotonGridPlugin;
+
+impl Plugin for PhotonGridPlugin {
+    fn build(&self, app: &mut App) {
+        let shader = crate::add_shader(app, "photon_grid/gather.wgsl", include_str!("../../shaders/photon_grid/gather.wgsl"));
+        for path in [DIAGNOSTIC_VOXELIZE, DIAGNOSTIC_TRACE, DIAGNOSTIC_RGRID, DIAGNOSTIC_FIELD] {
+            app.register_diagnostic(Diagnostic::new(path).with_suffix(" ms"));
+        }
+        app.register_type::<PhotonGridSettings>()
+            .init_resource::<PhotonGridState>()
+            .init_resource::<PhotonGridOutput>()
+            .init_resource::<PhotonGridActivity>()
+            .add_plugins(ExtractResourcePlugin::<PhotonGridOutput>::default())
+            .add_systems(
+                PostUpdate,
+                (
+                    crate::settings::validate_settings::<PhotonGridSettings>,
+                    update_photon_grid.after(SceneSnapshotSystems::Update),
+                ),
+            );
+        if let Some(render_app) = app.get_sub_app_mut(RenderApp) {
+            render_app.insert_resource(render::PhotonGridShader(shader));
+        }
+    }
+
+    fn finish(&self, app: &mut App) {
+        let supported = crate::gpu_supports(app, "PhotonGrid", |limits, _| missing_capabilities(limits));
+        let Some(render_app) = app.get_sub_app_mut(RenderApp).filter(|_| supported) else {
+            return;
+        };
+        render::add_render_systems(render_app);
+    }
+}
+
+/// The GPU capabilities the gather needs, as `(name, required, found)` for every shortfall: two storage
+/// buffers in the fragment shader, the coefficients' one up to the high preset's size.
+pub fn missing_capabilities(limits: &bevy::render::settings::WgpuLimits) -> Vec<crate::Shortfall> {
+    let mut missing = Vec::new();
+    if limits.max_storage_buffers_per_shader_stage < 2 {
+        missing.push(("max_storage_buffers_per_shader_stage", 2, limits.max_storage_buffers_per_shader_stage as u64));
+    }
+    missing
+}
+
+/// Keeps the field current for the first active photon-grid camera: the V-grid when geometry changes,
+/// photons, R-grid and field when geometry or lighting changes.
+#[expect(clippy::too_many_arguments, reason = "the preparation reads the cameras, the lights and the snapshot")]
+fn update_photon_grid(
+    mut commands: Commands,
+    cameras: Query<(&Camera, &DiffuseGi, Option<&PhotonGridSettings>, Option<&Exposure>)>,
+    gi_lights: Query<Entity, With<GiLight>>,
+    snapshot: Option<Res<SceneSnapshot>>,
+    mut state: ResMut<PhotonGridState>,
+    mut output: ResMut<PhotonGridOutput>,
+    mut activity: ResMut<PhotonGridActivity>,
+    mut cost: ResMut<crate::MainThreadCost>,
+    mut diagnostics: Diagnostics,
+) {
+    cost.photon_grid_ms = 0.0;
+    let camera = cameras
+        .iter()
+        .find(|(camera, gi, _, _)| camera.is_active && gi.enabled && gi.method == GiMethod::PhotonGrid);
+    let Some((_, _, settings, exposure)) = camera else {
+        if state.voxels_key.is_some() {
+            *state = PhotonGridState::default();
+            let generation = output.generation + 1;
+            *output = PhotonGridOutput { generation, ..default() };
+        }
+        return;
+    };
+    let Some(snapshot) = snapshot else {
+        commands.init_resource::<SceneSnapshot>();
+        return;
+    };
+    let frame_start = std::time::Instant::now();
+    let settings = settings.cloned().unwrap_or_default().sanitized().0;
+    let exposure = exposure.copied().unwrap_or_default().exposure();
+    let mut lights: Vec<Entity> = gi_lights.iter().collect();
+    lights.sort();
+    let field_key = Some(FieldKey {
+        geometry: snapshot.geometry_generation,
+        lights: snapshot.light_generation,
+        gi_lights: lights,
+        exposure: exposure.to_bits(),
+        environment: snapshot.environment_generation,
+        settings: settings.clone(),
+    });
+    if state.field_key == field_key {
+        return;
+    }
+    let state = &mut *state;
+    let mut times = PhotonGridTimes::default();
+    let Some((lo, hi)) = snapshot.bounds() else {
+        state.field_key = field_key;
+        let generation = output.generation + 1;
+        *output = PhotonGridOutput { generation, ..default() };
+        return;
+    };
+    let layout = GridLayout::fit(lo, hi, settings.resolution);
+
+    // 1. V-grid and SH-grid, when geometry or the resolution changed.
+    let voxels_key = Some((snapshot.geometry_generation, settings.resolution));
+    if state.voxels_key != voxels_key || state.vgrid.layout != Some(layout) {
+        let start = std::time::Instant::now();
+        state.vgrid = VGrid::build(&snapshot, layout);
+        state.voxels_key = voxels_key;
+        times.voxelize_ms = start.elapsed().as_secs_f32() * 1e3;
+    }
+
+    // 2. Photons.
+    let start = std::time::Instant::now();
+    let key = field_key.as_ref().unwrap();
+    let gi_lights: Vec<_> = snapshot.lights.iter().filter(|l| key.gi_lights.contains(&l.entity)).map(|l| l.light).collect();
+    let params = TraceParams { photons: settings.photons, max_reflections: settings.max_reflections, seed: 0x9e37_79b9, exposure };
+    let (photons, stats) = grid::trace_photons(&snapshot, &gi_lights, snapshot.environment.as_deref(), layout, &params);
+    times.trace_ms = start.elapsed().as_secs_f32() * 1e3;
+
+    // 3. R-grid.
+    let start = std::time::Instant::now();
+    let base = grid::accumulate_sorted(&photons, layout.cell_count());
+    let rgrid = RGrid::new(layout, base, 6);
+    times.rgrid_ms = start.elapsed().as_secs_f32() * 1e3;
+
+    // 4. SH field.
+    let start = std::time::Instant::now();
+    let field_params = FieldParams { directions: settings.sh_directions, max_distance: layout.cell * layout.dims.max_element() as f32 };
+    state.field = ShField::build(&state.vgrid, &rgrid, snapshot.environment.as_deref(), &field_params);
+    times.field_ms = start.elapsed().as_secs_f32() * 1e3;
+    state.field_key = field_key;
+
+    let field = &state.field;
+    let generation = output.generation + 1;
+    *output = PhotonGridOutput {
+        generation,
+        grid: PhotonGridUniform {
+            origin: layout.origin,
+            cell_size: layout.cell,
+            dims: layout.dims,
+            r_max: settings.r_max * layout.cell,
+            intensity: settings.intensity,
+            gather_samples: settings.gather_samples,
+            obscurance_distance: settings.obscurance_distance,
+            probes: field.coefficients.len() as u32,
+        },
+        cell_probe: Arc::new(field.cell_probe.clone()),
+        coefficients: Arc::new(field.coefficients.iter().flatten().copied().collect()),
+    };
+    cost.photon_grid_ms = frame_start.elapsed().as_secs_f32() * 1e3;
+    for (path, ms) in [
+        (&DIAGNOSTIC_VOXELIZE, times.voxelize_ms),
+        (&DIAGNOSTIC_TRACE, times.trace_ms),
+        (&DIAGNOSTIC_RGRID, times.rgrid_ms),
+        (&DIAGNOSTIC_FIELD, times.field_ms),
+    ] {
+        if ms > 0.0 {
+            diagnostics.add_measurement(path, || ms as f64);
+        }
+    }
+    *activity = PhotonGridActivity {
+        dims: layout.dims,
+        boundary_v_cells: state.vgrid.boundary_cells(),
+        boundary_sh_cells: state.vgrid.sh_boundary.iter().filter(|b| **b).count(),
+        probes: field.coefficients.len(),
+        inside: field.inside,
+        photons: photons.len(),
+        stats,
+        times,
+        updates: activity.updates + 1,
+    };
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn presets_are_valid_and_grow_in_cost() {
+        let presets = [PhotonGridSettings::LOW, PhotonGridSettings::MEDIUM, PhotonGridSettings::HIGH];
+        for preset in &presets {
+            assert!(preset.sanitized().1.is_empty(), "{preset:?}");
+        }
+        assert!(presets.windows(2).all(|w| w[0].resolution < w[1].resolution
+            && w[0].photons < w[1].photons
+            && w[0].sh_directions < w[1].sh_directions));
+        assert_eq!(PhotonGridSettings::default(), PhotonGridSettings::MEDIUM);
+    }
+
+    #[test]
+    fn invalid_settings_are_clamped_and_named() {
+        let s = PhotonGridSettings { resolution: 0, photons: u32::MAX, r_max: f32::NAN, intensity: -1.0, ..default() };
+        let (clean, bad) = s.sanitized();
+        let names: Vec<_> = bad.iter().map(|b| b.0).collect();
+        assert_eq!(names, ["resolution", "photons", "r_max", "intensity"]);
+        assert_eq!((clean.resolution, clean.photons, clean.r_max, clean.intensity), (4, 4_194_304, 1.75, 0.0));
+    }
+}
