@@ -4,9 +4,10 @@
 // At the texel's surface point x with normal n:
 //
 //     I_lm(x) = Σ_pqr w(x_pqr) I_lm(x_pqr) / Σ_pqr w(x_pqr)         over the 27 cells around x (§4.1)
-//     w = w_sh(d) · side,  w_sh(d) = 2d³/r³ − 3d²/r² + 1 (d < r)
+//     w = w_sh(d) · side · visible,  w_sh(d) = 2d³/r³ − 3d²/r² + 1 (d < r)
 //
-// where `side` fades out the probes behind the surface (src/photon_grid/grid.rs `side_weight`). Then
+// where `side` fades out the probes behind the surface and `visible` those whose distance field says a
+// surface lies between them and x (src/photon_grid/grid.rs `side_weight`, `visibility_weight`). Then
 // E = ∫ Ī(ω) cos θ dω over the hemisphere: exactly, by the clamped-cosine convolution of the nine
 // coefficients (N_d = 0), or by the paper's N_d directions: of 2 N_d uniform directions on the sphere,
 // those above the surface, E ≈ 2π/N Σ cos θ_i Ī(ω_i) (§4.2). With an obscurance distance D the result is
@@ -79,6 +80,16 @@ fn probe_weight(x: vec3<f32>, n: vec3<f32>, p: vec3<f32>) -> f32 {
     return w_sh * side;
 }
 
+// `visibility_weight` of grid.rs: the probe's distance field towards x against the distance to x.
+fn visibility_weight(c: array<vec4<f32>, 9>, p: vec3<f32>, x: vec3<f32>) -> f32 {
+    let d = length(x - p);
+    if d < 1e-6 {
+        return 1.0;
+    }
+    let seen = evaluate(c, (x - p) / d).a;
+    return clamp((seen / d - 0.4) / 0.4, 0.0, 1.0);
+}
+
 fn evaluate(c: array<vec4<f32>, 9>, d: vec3<f32>) -> vec4<f32> {
     let y = sh_basis(d);
     var v = vec4(0.0);
@@ -110,12 +121,16 @@ fn gather(in: FullscreenVertexOutput) -> @location(0) vec4<f32> {
             continue;
         }
         let p = grid.origin + (vec3<f32>(cell) + 0.5) * grid.cell_size;
-        let w = probe_weight(x, n, p);
+        var probe_c = array<vec4<f32>, 9>();
+        for (var j = 0u; j < 9u; j++) {
+            probe_c[j] = coefficients[probe * 9u + j];
+        }
+        let w = probe_weight(x, n, p) * visibility_weight(probe_c, p, x);
         if w <= 0.0 {
             continue;
         }
         for (var j = 0u; j < 9u; j++) {
-            c[j] += coefficients[probe * 9u + j] * w;
+            c[j] += probe_c[j] * w;
         }
         total += w;
     }

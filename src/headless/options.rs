@@ -299,6 +299,9 @@ pub struct PhotonGridArgs {
     /// Gather directions N_d (0 = the exact integral)
     #[arg(long, value_name = "N")]
     pub photon_gather_samples: Option<u32>,
+    /// Coarsest R-grid level of the radiance filter (0 = the base level only)
+    #[arg(long, value_name = "N")]
+    pub photon_filter_levels: Option<u32>,
     /// Extent of the gather's distance weight, SH cells
     #[arg(long, value_name = "R")]
     pub photon_r_max: Option<f32>,
@@ -315,6 +318,7 @@ impl PhotonGridArgs {
             photon_reflections,
             photon_sh_directions,
             photon_gather_samples,
+            photon_filter_levels,
             photon_r_max,
             photon_obscurance,
         } = self;
@@ -323,6 +327,7 @@ impl PhotonGridArgs {
         s.max_reflections = photon_reflections.unwrap_or(s.max_reflections);
         s.sh_directions = photon_sh_directions.unwrap_or(s.sh_directions);
         s.gather_samples = photon_gather_samples.unwrap_or(s.gather_samples);
+        s.filter_levels = photon_filter_levels.unwrap_or(s.filter_levels);
         s.r_max = photon_r_max.unwrap_or(s.r_max);
         s.obscurance_distance = photon_obscurance.unwrap_or(s.obscurance_distance);
     }

@@ -181,6 +181,45 @@ impl VGrid {
         self.cells.binary_search_by_key(&i, |e| e.0).ok().map(|k| self.cells[k].1)
     }
 
+    /// The faces of the SH cell around `p` that a surface facing `p` hides: walking from `p`'s V-cell
+    /// towards each face along its axis, a boundary V-cell whose normal faces back (or whose normals
+    /// cancel: both faces of a thin wall) blocks it. A floor photon beside a wall thinner than the cell
+    /// then lights the cell's faces on its own side only, and a room does not see the next room's floor
+    /// through the wall (§3.3's faces carry the light of everything in the cell otherwise).
+    pub fn blocked_faces(&self, p: Vec3) -> u8 {
+        let Some(layout) = self.layout else { return 0 };
+        let v = ((p - layout.origin) / layout.v_cell()).floor();
+        if !v.is_finite() || v.cmplt(Vec3::ZERO).any() || v.cmpge(layout.v_dims().as_vec3()).any() {
+            return 0;
+        }
+        let v = v.as_ivec3();
+        let per = V_PER_SH as i32;
+        let sh = v / per;
+        let mut blocked = 0u8;
+        for face in 0..FACES {
+            let axis = face / 2;
+            let step = if face % 2 == 0 { 1 } else { -1 };
+            let e = Vec3::AXES[axis] * step as f32;
+            let mut w = v;
+            loop {
+                w[axis] += step;
+                if w[axis].div_euclid(per) != sh[axis] {
+                    break;
+                }
+                if !self.occupied(w) {
+                    continue;
+                }
+                let Some(cell) = self.cell(w.as_uvec3()) else { continue };
+                let coherent = cell.normal_sum.length() > 0.5 * cell.area;
+                if !coherent || cell.normal_sum.normalize().dot(e) < -0.5 {
+                    blocked |= 1 << face;
+                    break;
+                }
+            }
+        }
+        blocked
+    }
+
     /// Walks the V-grid from `origin` (world) along the unit `direction`: the first boundary cell and the
     /// distance at which the ray enters it, or `None` when it leaves the grid. The two-level traversal of
     /// §3.4.2: whole SH cells without a boundary V-cell are crossed in one step.
@@ -254,6 +293,9 @@ pub struct Photon {
     pub cell: u32,
     pub direction: Vec3,
     pub power: Vec3,
+    /// Faces of its cell (bit `f` for face `f`) that a surface facing the photon hides from it: its flux
+    /// does not go out through them (see [`VGrid::blocked_faces`]).
+    pub blocked: u8,
 }
 
 /// Where the emitted flux went, lumens per channel (expected values: a surface absorbs `(1 − ρ)` of what
@@ -309,9 +351,12 @@ pub fn trace_photons(
     snapshot: &SceneSnapshot,
     lights: &[SnapshotLight],
     environment: Option<&Environment>,
-    layout: GridLayout,
+    vgrid: &VGrid,
     params: &TraceParams,
 ) -> (Vec<Photon>, PhotonStats) {
+    let Some(layout) = vgrid.layout else {
+        return (Vec::new(), PhotonStats::default());
+    };
     let Some((lo, hi)) = snapshot.bounds() else {
         return (Vec::new(), PhotonStats::default());
     };
@@ -395,11 +440,11 @@ pub fn trace_photons(
                 if let Source::Emitter(..) = source {
                     // The emission leaves the emitter: stored, like a reflection, with its direction.
                     if let Some(c) = layout.cell_of(origin) {
-                        photons.push(Photon { cell: layout.index(c) as u32, direction, power });
+                        photons.push(Photon { cell: layout.index(c) as u32, direction, power, blocked: vgrid.blocked_faces(origin) });
                         stats.stored += 1;
                     }
                 }
-                trace_path(snapshot, layout, params, origin, direction, power, falloff, epsilon, &mut rng, &mut photons, &mut stats);
+                trace_path(snapshot, vgrid, params, origin, direction, power, falloff, epsilon, &mut rng, &mut photons, &mut stats);
             }
             (photons, stats)
         })
@@ -490,7 +535,7 @@ fn emit(
 #[expect(clippy::too_many_arguments, reason = "one photon path and where it ends up")]
 fn trace_path(
     snapshot: &SceneSnapshot,
-    layout: GridLayout,
+    vgrid: &VGrid,
     params: &TraceParams,
     mut origin: Vec3,
     mut direction: Vec3,
@@ -501,6 +546,7 @@ fn trace_path(
     photons: &mut Vec<Photon>,
     stats: &mut PhotonStats,
 ) {
+    let Some(layout) = vgrid.layout else { return };
     let mut reflections = 0;
     loop {
         let Some(hit) = snapshot.intersect(origin, direction, epsilon, f32::INFINITY) else {
@@ -535,7 +581,7 @@ fn trace_path(
         // The photon lies on the side it leaves from, in the SH cell whose faces it lights.
         let stored_at = position + n * (layout.v_cell() * 0.01).max(epsilon);
         if let Some(c) = layout.cell_of(stored_at) {
-            photons.push(Photon { cell: layout.index(c) as u32, direction: out, power });
+            photons.push(Photon { cell: layout.index(c) as u32, direction: out, power, blocked: vgrid.blocked_faces(stored_at) });
             stats.stored += 1;
         }
         if reflections >= params.max_reflections {
@@ -593,7 +639,9 @@ pub fn accumulate_sorted(photons: &[Photon], cells: usize) -> Vec<CellFaces> {
             for &(_, p) in &sorted[start..end] {
                 let photon = &photons[p as usize];
                 for (face, w) in face_weights(photon.direction) {
-                    faces[face] += photon.power * w;
+                    if photon.blocked & (1 << face) == 0 {
+                        faces[face] += photon.power * w;
+                    }
                 }
             }
             (sorted[start].0, faces)
@@ -615,7 +663,9 @@ pub fn accumulate_direct(photons: &[Photon], cells: usize) -> Vec<CellFaces> {
     for photon in photons {
         if let Some(slot) = out.get_mut(photon.cell as usize) {
             for (face, w) in face_weights(photon.direction) {
-                slot[face] += photon.power * w;
+                if photon.blocked & (1 << face) == 0 {
+                    slot[face] += photon.power * w;
+                }
             }
         }
     }
@@ -685,6 +735,8 @@ pub struct FieldParams {
     pub directions: u32,
     /// Distance recorded for rays that leave the grid, metres (and the largest distance kept).
     pub max_distance: f32,
+    /// The coarsest R-grid level the footprint filter may read (§3.4.3); 0 reads the base level only.
+    pub filter_levels: u32,
 }
 
 /// The spherical-harmonics field (§3.4): at the centres of the SH-grid's boundary cells and their 26
@@ -728,6 +780,7 @@ fn probe_ray(vgrid: &VGrid, rgrid: &RGrid, env: Option<&Environment>, c: Vec3, d
     let footprint = 4.0 * PI * distance * distance / (params.directions as f32 * cos_beta);
     let base_area = layout.cell * layout.cell;
     let level = (0.5 * (footprint / base_area).max(1.0).log2()).clamp(0.0, (rgrid.levels.len() - 1) as f32);
+    let level = level.min(params.filter_levels as f32);
     let (l0, frac) = (level.floor() as usize, level.fract());
     let mut radiance = rgrid.radiance(layout.origin, l0, hit, n);
     if frac > 0.0 && l0 + 1 < rgrid.levels.len() {
@@ -815,10 +868,11 @@ impl ShField {
                         continue;
                     }
                     let p = layout.centre(c.as_uvec3());
-                    let w = sh_weight((p - x).length(), r_max) * side_weight(n.dot(p - x) / layout.cell);
+                    let probe = &self.coefficients[probe as usize];
+                    let w = sh_weight((p - x).length(), r_max) * side_weight(n.dot(p - x) / layout.cell) * visibility_weight(probe, p, x);
                     if w > 0.0 {
                         for k in 0..9 {
-                            sum[k] += self.coefficients[probe as usize][k] * w;
+                            sum[k] += probe[k] * w;
                         }
                         total += w;
                     }
@@ -846,6 +900,21 @@ pub fn sh_weight(d: f32, r_max: f32) -> f32 {
     }
     let t = d / r_max;
     2.0 * t * t * t - 3.0 * t * t + 1.0
+}
+
+/// Whether a probe sees the surface point `x`: its distance field towards `x` (§3.4.4) against the
+/// distance to `x`. 0 when the probe's first surface in that direction is nearer than 0.4 of the way
+/// (a wall between them), 1 from 0.8 of the way (the low-order field blurs the distance to the surface
+/// itself).
+pub fn visibility_weight(probe: &[Vec4; 9], p: Vec3, x: Vec3) -> f32 {
+    let to_x = x - p;
+    let d = to_x.length();
+    if d < 1e-6 {
+        return 1.0;
+    }
+    let y = basis(to_x / d);
+    let seen: f32 = (0..9).map(|k| probe[k].w * y[k]).sum();
+    ((seen / d - 0.4) / 0.4).clamp(0.0, 1.0)
 }
 
 /// Weight of a probe at signed distance `s` cells in front of the surface (along its normal): 0 from a
@@ -904,7 +973,7 @@ mod tests {
         let layout = GridLayout::fit(lo, hi, resolution);
         let lights: Vec<_> = snapshot.lights.iter().map(|l| l.light).collect();
         let params = TraceParams { photons, max_reflections: reflections, seed: 7, exposure: 1.0 };
-        let (list, stats) = trace_photons(snapshot, &lights, snapshot.environment.as_deref(), layout, &params);
+        let (list, stats) = trace_photons(snapshot, &lights, snapshot.environment.as_deref(), &VGrid::build(snapshot, layout), &params);
         (layout, list, stats)
     }
 
@@ -1025,12 +1094,14 @@ mod tests {
         // The R-grid reads the floor's radiance ρE/π where a ray meets it from above.
         let l = rgrid.radiance(layout.origin, 0, Vec3::new(0.3, 0.01, 0.2), Vec3::Y);
         let truth = 0.5 * 1000.0 / PI;
+        println!("floor radiance ratio {}", l.x / truth);
         assert!((l.x / truth - 1.0).abs() < 0.1, "{l} against {truth}");
         // A 45° plane: within 5 % of its radiance by the face flux read at its normal.
-        let field = ShField::build(&vgrid, &rgrid, None, &FieldParams { directions: 512, max_distance: 100.0 });
+        let field = ShField::build(&vgrid, &rgrid, None, &FieldParams { directions: 512, max_distance: 100.0, filter_levels: 1 });
         assert!(!field.coefficients.is_empty());
         // E/π on a patch 0.5 m above the floor, facing down, away from the rim: ρE/π.
         let e = field.irradiance(Vec3::new(0.4, 0.5, -0.3), Vec3::NEG_Y, 1.75 * layout.cell);
+        println!("irradiance ratio {}", e.x / truth);
         assert!((e.x / truth - 1.0).abs() < 0.1, "E/π {e} against {truth}");
         // Facing up, the sun's direct light is Bevy's: the field sees only the sky-less void above.
         let up = field.irradiance(Vec3::new(0.4, 0.5, -0.3), Vec3::Y, 1.75 * layout.cell);
@@ -1045,7 +1116,7 @@ mod tests {
         let count = 200_000;
         let mut rng = rng_for(3, 0);
         let photons: Vec<Photon> =
-            (0..count).map(|_| Photon { cell: 0, direction: cosine_hemisphere(n, uniform2(&mut rng)), power: Vec3::ONE }).collect();
+            (0..count).map(|_| Photon { cell: 0, direction: cosine_hemisphere(n, uniform2(&mut rng)), power: Vec3::ONE, blocked: 0 }).collect();
         let layout = GridLayout { origin: Vec3::ZERO, cell: 1.0, dims: UVec3::ONE };
         let rgrid = RGrid::new(layout, accumulate_sorted(&photons, 1), 1);
         let l = rgrid.radiance(Vec3::ZERO, 0, Vec3::splat(0.5), n);
@@ -1053,7 +1124,7 @@ mod tests {
         assert!((l.x / truth - 1.0).abs() < 0.05, "{l} against {truth}");
         // The paper's face value (flux over the face's area, no factor) reads half of a facing plane's.
         let flat: Vec<Photon> =
-            (0..count).map(|_| Photon { cell: 0, direction: cosine_hemisphere(Vec3::Y, uniform2(&mut rng)), power: Vec3::ONE }).collect();
+            (0..count).map(|_| Photon { cell: 0, direction: cosine_hemisphere(Vec3::Y, uniform2(&mut rng)), power: Vec3::ONE, blocked: 0 }).collect();
         let faces = accumulate_direct(&flat, 1);
         assert!((faces[0][2].x / count as f32 - 0.5).abs() < 0.01);
     }
@@ -1068,7 +1139,7 @@ mod tests {
         assert!(stats.emitted.is_finite());
         let vgrid = VGrid::build(&snapshot, layout);
         let rgrid = RGrid::new(layout, accumulate_sorted(&photons, layout.cell_count()), 4);
-        let field = ShField::build(&vgrid, &rgrid, None, &FieldParams { directions: 64, max_distance: 10.0 });
+        let field = ShField::build(&vgrid, &rgrid, None, &FieldParams { directions: 64, max_distance: 10.0, filter_levels: 1 });
         assert!(field.coefficients.iter().flatten().all(|c| c.is_finite()));
         for i in 0..50 {
             let e = field.irradiance(Vec3::splat(i as f32 * 0.03 - 0.7), fibonacci_sphere(i, 50), 1.75 * layout.cell);
@@ -1076,7 +1147,8 @@ mod tests {
         }
         // An empty scene.
         let empty = SceneSnapshot::default();
-        let (list, stats) = trace_photons(&empty, &[], None, GridLayout::fit(Vec3::ZERO, Vec3::ONE, 4), &TraceParams { photons: 10, max_reflections: 4, seed: 0, exposure: 1.0 });
+        let grid = VGrid::build(&empty, GridLayout::fit(Vec3::ZERO, Vec3::ONE, 4));
+        let (list, stats) = trace_photons(&empty, &[], None, &grid, &TraceParams { photons: 10, max_reflections: 4, seed: 0, exposure: 1.0 });
         assert!(list.is_empty() && stats == PhotonStats::default());
     }
 
@@ -1110,12 +1182,91 @@ mod tests {
         let (_, t) = vgrid.march(Vec3::new(1.0, 1.2, 1.0), Vec3::Y).expect("the ceiling");
         assert!((t - 0.8).abs() <= layout.v_cell() * 1.01, "{t}");
         let rgrid = RGrid::new(layout, vec![[Vec3::ZERO; FACES]; layout.cell_count()], 3);
-        let field = ShField::build(&vgrid, &rgrid, None, &FieldParams { directions: 128, max_distance: 10.0 });
+        let field = ShField::build(&vgrid, &rgrid, None, &FieldParams { directions: 128, max_distance: 10.0, filter_levels: 1 });
         let probe = |p: Vec3| field.cell_probe[layout.index(layout.cell_of(p).unwrap())];
         assert_eq!(probe(Vec3::new(0.05, 0.05, 0.05)), u32::MAX, "the cube's centre");
         assert_ne!(probe(Vec3::new(0.8, 0.1, 0.1)), u32::MAX, "the room by the cube");
         // Far from every surface there is no probe (§3.1: only boundary cells and their neighbours).
         assert_eq!(probe(Vec3::new(1.2, 1.2, 1.2)), u32::MAX, "the middle of the room");
         assert!(field.inside > 0);
+    }
+}
+
+#[cfg(all(test, feature = "reference"))]
+mod against_the_tracer {
+    use super::*;
+    use crate::reference::{ReferenceSettings, incident_radiance};
+
+    /// Whether the cell at `c` gets a probe (a boundary cell or next to one).
+    fn field_probe(vgrid: &VGrid, layout: GridLayout, c: Vec3) -> Option<()> {
+        let cell = layout.cell_of(c)?.as_ivec3();
+        let dims = layout.dims.as_ivec3();
+        for k in 0..27 {
+            let n = cell + IVec3::new(k % 3 - 1, (k / 3) % 3 - 1, k / 9 - 1);
+            if n.cmpge(IVec3::ZERO).all() && n.cmplt(dims).all() && vgrid.sh_boundary[layout.index(n.as_uvec3())] {
+                return Some(());
+            }
+        }
+        None
+    }
+
+    #[test]
+    #[ignore = "diagnostic"]
+    fn probe_radiance_on_cornell() {
+        let snapshot = match std::env::var("PG_SCENE").as_deref() {
+            Ok("cellar") => crate::scenes::cellar::cellar_snapshot(),
+            Ok("sponza") => crate::scenes::sponza_like::sponza_like_snapshot(),
+            _ => crate::scenes::cornell::cornell_snapshot(),
+        };
+        let (lo, hi) = snapshot.bounds().unwrap();
+        let layout = GridLayout::fit(lo, hi, 32);
+        let lights: Vec<_> = snapshot.lights.iter().map(|l| l.light).collect();
+        let vgrid = VGrid::build(&snapshot, layout);
+        let (photons, _) = trace_photons(&snapshot, &lights, None, &vgrid, &TraceParams { photons: 1 << 20, max_reflections: 8, seed: 1, exposure: 1.0 });
+        let rgrid = RGrid::new(layout, accumulate_sorted(&photons, layout.cell_count()), 6);
+        let params = FieldParams { directions: 128, max_distance: 10.0, filter_levels: 1 };
+        let settings = ReferenceSettings::default();
+        let mut rng = rng_for(5, 5);
+        let (mut ours, mut theirs) = (0.0, 0.0);
+        println!("lo {lo} hi {hi} cell {}", layout.cell);
+        for k in 0..40 {
+            let p = lo + (hi - lo) * Vec3::new(rng.random(), rng.random(), rng.random());
+            let c = layout.centre(layout.cell_of(p).unwrap());
+            if field_probe(&vgrid, layout, c).is_none() {
+                continue;
+            }
+            let (mut a, mut b) = (0.0, 0.0);
+            for i in 0..params.directions {
+                let d = fibonacci_sphere(i, params.directions);
+                let (l, _, _) = probe_ray(&vgrid, &rgrid, None, c, d, &params);
+                let t = incident_radiance(&snapshot, c, d, &settings, 32, (k * 1000 + i) as u64);
+                a += l.x;
+                b += (t[0] + t[1] + t[2]).x;
+            }
+            println!("probe at {c:.2}: ours {a:.2} truth {b:.2} ratio {:.3}", a / b);
+            ours += a;
+            theirs += b;
+        }
+        println!("total ratio {:.3}", ours / theirs);
+        // Surface radiance: the R-grid at a surface point against the tracer looking at it.
+        for (p, n) in [
+            (Vec3::new(0.0, -1.0, 0.3), Vec3::Y),
+            (Vec3::new(-0.6, -1.0, 0.6), Vec3::Y),
+            (Vec3::new(0.0, 1.0, 0.0), Vec3::NEG_Y),
+            (Vec3::new(0.5, 1.0, 0.5), Vec3::NEG_Y),
+            (Vec3::new(0.0, 0.0, -1.0), Vec3::Z),
+            (Vec3::new(-1.0, 0.2, 0.0), Vec3::X),
+            (Vec3::new(1.0, -0.5, 0.5), Vec3::NEG_X),
+        ] {
+            let mut l = Vec3::ZERO;
+            for k in 0..4 {
+                let q = p + n * (0.3 * layout.v_cell() * k as f32 + 1e-4);
+                l += rgrid.radiance(layout.origin, 0, q, n) / 4.0;
+            }
+            let t = incident_radiance(&snapshot, p + n * 0.05, -n, &settings, 4096, 77);
+            println!("   direct {:.2} indirect {:.2}", t[1], t[2]);
+            let t = t[0] + t[1] + t[2];
+            println!("surface {p} n {n}: ours {l:.2} truth {t:.2} ratio {:.3}", l.x / t.x);
+        }
     }
 }

@@ -434,6 +434,7 @@ pub fn photon_grid_ui(ui: &mut egui::Ui, settings: &mut Mut<PhotonGridSettings>)
     ui.add(egui::Slider::new(&mut v.photons, 1024..=4_194_304).logarithmic(true).text("photons"));
     ui.add(egui::Slider::new(&mut v.max_reflections, 1..=8).text("stored reflections"));
     ui.add(egui::Slider::new(&mut v.sh_directions, 16..=2048).logarithmic(true).text("probe directions N_sh"));
+    ui.add(egui::Slider::new(&mut v.filter_levels, 0..=5).text("coarsest R-grid level read"));
     ui.add(egui::Slider::new(&mut v.gather_samples, 0..=256).text("gather directions N_d (0: exact)"));
     ui.add(egui::Slider::new(&mut v.r_max, 1.0..=3.0).text("r_max (cells)"));
     ui.add(egui::Slider::new(&mut v.obscurance_distance, 0.0..=1000.0).logarithmic(true).text("obscurance distance (m, 0 off)"));
