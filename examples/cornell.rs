@@ -2,7 +2,7 @@
 //!
 //! `cargo run --release --example cornell`
 //!
-//! Keys: G bounced light on/off, M or 1–5 the method (Radiance Hints, VPL, RSM gather, DRM, radiosity), P the
+//! Keys: G bounced light on/off, M or 1–6 the method (Radiance Hints, VPL, RSM gather, DRM, radiosity, photon grid), P the
 //! preset of every method, V the debug view, H half resolution, L the lights' motion, C orbit ↔ fly camera,
 //! F1 the tuning panel ("Diffuse GI": every setting, the volume's activity, warnings, per-pass GPU times).
 //! Orbit: left drag turns, right drag pans, the wheel zooms; fly: W A S D Q E, right drag looks.

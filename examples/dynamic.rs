@@ -3,7 +3,7 @@
 //!
 //! `cargo run --release --example dynamic`
 //!
-//! Keys: the common ones (G bounced light, M or 1–5 the method, P preset, V debug view, H half resolution,
+//! Keys: the common ones (G bounced light, M or 1–6 the method, P preset, V debug view, H half resolution,
 //! C orbit ↔ fly camera, F1 the panel), and: L the light's orbit, O how many objects move (0, 1, 10),
 //! N adds a box at a random place, R removes the newest added box, Space pauses everything. The small
 //! window shows the plugin's main-thread cost per frame.

@@ -5,7 +5,7 @@
 //!
 //! `cargo run --release --example implicit_visibility [-- --scene NAME|PATH.glb]`
 //!
-//! Keys: G bounced light on/off, M or 1–5 the method, P the preset of every method, V the debug view, H
+//! Keys: G bounced light on/off, M or 1–6 the method, P the preset of every method, V the debug view, H
 //! half resolution, L the lights' motion, B the banner's motion, C orbit ↔ fly camera, F1 the tuning panel
 //! ("Diffuse GI": the radiosity settings and what each solve did, per stage).
 //! Orbit: left drag turns, right drag pans, the wheel zooms; fly: W A S D Q E, right drag looks.

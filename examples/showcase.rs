@@ -4,7 +4,7 @@
 //!
 //! `cargo run --release --example showcase`
 //!
-//! Keys: the common ones (G bounced light, M or 1–5 the method, P preset, V debug view, H half resolution,
+//! Keys: the common ones (G bounced light, M or 1–6 the method, P preset, V debug view, H half resolution,
 //! L the lights' motion, C orbit ↔ fly camera, F1 the panel), and N next slide, Space auto-advance.
 //!
 //! Without a display (no `DISPLAY` or `WAYLAND_DISPLAY`, as on a CI machine) it renders one frame of

@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 /// Every method, as the examples label their screenshots.
-const METHODS: &[&str] = &["rh", "vpl", "rsm", "drm", "radiosity"];
+const METHODS: &[&str] = &["rh", "vpl", "rsm", "drm", "radiosity", "photon-grid"];
 
 /// The windowed examples and the screenshots each takes after the no-GI one; `true`: each shows the scene
 /// of the no-GI screenshot (so it must be brighter than it).
@@ -30,6 +30,7 @@ const EXAMPLES: &[(&str, &[&str], bool)] = &[
     ("rsm_gather", &["rsm"], true),
     ("direct_radiance_mapping", &["drm"], true),
     ("implicit_visibility", &["radiosity"], true),
+    ("photon_grid", &["photon-grid"], true),
     // The slides: a scene each; only the first shows the no-GI screenshot's scene (cornell).
     (
         "showcase",

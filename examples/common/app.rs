@@ -3,7 +3,7 @@
 //! and the CI harness ([`crate::common::CiCapturePlugin`]). Each example is a few lines on top
 //! ([`ExampleSpec`] and, where it needs more, its own systems).
 //!
-//! Keys every example has: G bounced light on/off, M or 1–5 the method, P the preset of every method,
+//! Keys every example has: G bounced light on/off, M or 1–6 the method, P the preset of every method,
 //! V the debug view, H half resolution, L the lights' motion, C orbit ↔ fly camera, F1 the panel.
 //! Orbit: left drag turns, right or middle drag pans, the wheel zooms. Fly: W A S D move, Q E down/up,
 //! Shift faster, right drag looks.
@@ -155,6 +155,7 @@ pub fn gi_camera(method: GiMethod) -> impl Bundle {
         RsmGatherSettings::MEDIUM,
         DrmSettings::MEDIUM,
         RadiositySettings::MEDIUM,
+        PhotonGridSettings::MEDIUM,
         Hdr,
         Tonemapping::TonyMcMapface,
     )
@@ -207,14 +208,21 @@ fn keys(
     keys: Res<ButtonInput<KeyCode>>,
     wants: Option<Res<bevy_egui::input::EguiWantsInput>>,
     mut example: ResMut<Example>,
-    mut cameras: Query<(&mut DiffuseGi, &mut VplSettings, &mut RsmGatherSettings, &mut DrmSettings, &mut RadiositySettings)>,
+    mut cameras: Query<(
+        &mut DiffuseGi,
+        &mut VplSettings,
+        &mut RsmGatherSettings,
+        &mut DrmSettings,
+        &mut RadiositySettings,
+        &mut PhotonGridSettings,
+    )>,
     mut volumes: Query<&mut RadianceHintsVolume>,
 ) {
     if wants.is_some_and(|w| w.wants_any_keyboard_input()) {
         return;
     }
-    let digits = [KeyCode::Digit1, KeyCode::Digit2, KeyCode::Digit3, KeyCode::Digit4, KeyCode::Digit5];
-    for (mut gi, mut vpl, mut rsm, mut drm, mut radiosity) in &mut cameras {
+    let digits = [KeyCode::Digit1, KeyCode::Digit2, KeyCode::Digit3, KeyCode::Digit4, KeyCode::Digit5, KeyCode::Digit6];
+    for (mut gi, mut vpl, mut rsm, mut drm, mut radiosity, mut photon_grid) in &mut cameras {
         if keys.just_pressed(KeyCode::KeyG) {
             gi.enabled = !gi.enabled;
         }
@@ -241,6 +249,7 @@ fn keys(
             *rsm = [RsmGatherSettings::LOW, RsmGatherSettings::MEDIUM, RsmGatherSettings::HIGH][p].clone();
             *drm = [DrmSettings::LOW, DrmSettings::MEDIUM, DrmSettings::HIGH][p].clone();
             *radiosity = [RadiositySettings::LOW, RadiositySettings::MEDIUM, RadiositySettings::HIGH][p].clone();
+            *photon_grid = [PhotonGridSettings::LOW, PhotonGridSettings::MEDIUM, PhotonGridSettings::HIGH][p].clone();
         }
     }
     if keys.just_pressed(KeyCode::KeyP) {
@@ -404,7 +413,7 @@ fn keys_window(
             ));
         }
         ui.label(format!(
-            "G bounced light  M/1-5 method  P preset  V view  H half res  L lights ({})",
+            "G bounced light  M/1-6 method  P preset  V view  H half res  L lights ({})",
             if example.moving { "moving" } else { "still" }
         ));
         ui.label("C orbit/fly  F1 panel  orbit: drag turns, right drag pans, wheel zooms");

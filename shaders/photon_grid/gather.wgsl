@@ -7,7 +7,8 @@
 //     w = w_sh(d) · side · visible,  w_sh(d) = 2d³/r³ − 3d²/r² + 1 (d < r)
 //
 // where `side` fades out the probes behind the surface and `visible` those whose distance field says a
-// surface lies between them and x (src/photon_grid/grid.rs `side_weight`, `visibility_weight`). Then
+// surface lies between them and x (src/photon_grid/grid.rs `side_weight`, `visibility_weight`); of the
+// rest, those a V-grid boundary cell hides from x are dropped (unless that drops them all). Then
 // E = ∫ Ī(ω) cos θ dω over the hemisphere: exactly, by the clamped-cosine convolution of the nine
 // coefficients (N_d = 0), or by the paper's N_d directions: of 2 N_d uniform directions on the sphere,
 // those above the surface, E ≈ 2π/N Σ cos θ_i Ī(ω_i) (§4.2). With an obscurance distance D the result is
@@ -37,6 +38,8 @@ struct PhotonGridUniform {
 @group(1) @binding(0) var<uniform> grid: PhotonGridUniform;
 @group(1) @binding(1) var<storage, read> cell_probe: array<u32>;
 @group(1) @binding(2) var<storage, read> coefficients: array<vec4<f32>>;
+// The V-grid's boundary cells, a bit each (bit i % 32 of word i / 32).
+@group(1) @binding(3) var<storage, read> occupancy: array<u32>;
 
 const PI: f32 = 3.141592653589793;
 const NO_PROBE: u32 = 0xffffffffu;
@@ -44,6 +47,10 @@ const NO_PROBE: u32 = 0xffffffffu;
 const GI_SCALE: i32 = #{GI_SCALE};
 // Directions of the obscurance when the integral itself is exact (N_d = 0).
 const OBSCURANCE_SAMPLES: u32 = 32u;
+// V-grid cells per SH cell along an axis (`grid::V_PER_SH`) and the start of the visibility segments
+// off the surface, in V-cells (`grid::GATHER_START_OFFSET`, as a percentage): shader defs.
+const V_PER_SH: i32 = #{V_PER_SH};
+const GATHER_START_OFFSET: f32 = f32(#{GATHER_START_OFFSET_PERCENT}u) / 100.0;
 
 // The nine real SH basis functions (the order and constants of src/sh.rs).
 fn sh_basis(d: vec3<f32>) -> array<f32, 9> {
@@ -80,6 +87,63 @@ fn probe_weight(x: vec3<f32>, n: vec3<f32>, p: vec3<f32>) -> f32 {
     return w_sh * side;
 }
 
+fn occupied(v: vec3<i32>, dims: vec3<i32>) -> bool {
+    if any(v < vec3(0)) || any(v >= dims) {
+        return false;
+    }
+    let i = u32((v.z * dims.y + v.y) * dims.x + v.x);
+    return (occupancy[i / 32u] & (1u << (i % 32u))) != 0u;
+}
+
+// Whether a boundary V-cell lies strictly between the V-cells of world points a and b
+// (`VGrid::segment_blocked`).
+fn segment_blocked(a_world: vec3<f32>, b_world: vec3<f32>) -> bool {
+    let v_cell = grid.cell_size / f32(V_PER_SH);
+    let dims = vec3<i32>(grid.dims) * V_PER_SH;
+    let a = (a_world - grid.origin) / v_cell;
+    let b = (b_world - grid.origin) / v_cell;
+    let len = length(b - a);
+    if len < 1e-5 {
+        return false;
+    }
+    let d = (b - a) / len;
+    var v = vec3<i32>(floor(a));
+    let end = vec3<i32>(floor(b));
+    let stepv = vec3<i32>(sign(d));
+    let inv = 1.0 / max(abs(d), vec3(1e-8));
+    var t_max = select(floor(a) + 1.0 - a, a - floor(a), d < vec3(0.0)) * inv;
+    t_max = select(t_max, vec3(3.0e38), abs(d) < vec3(1e-8));
+    let steps = i32(ceil(len)) * 3 + 3;
+    for (var i = 0; i < steps; i++) {
+        if t_max.x < t_max.y && t_max.x < t_max.z {
+            if t_max.x >= len {
+                return false;
+            }
+            t_max.x += inv.x;
+            v.x += stepv.x;
+        } else if t_max.y < t_max.z {
+            if t_max.y >= len {
+                return false;
+            }
+            t_max.y += inv.y;
+            v.y += stepv.y;
+        } else {
+            if t_max.z >= len {
+                return false;
+            }
+            t_max.z += inv.z;
+            v.z += stepv.z;
+        }
+        if all(v == end) {
+            return false;
+        }
+        if occupied(v, dims) {
+            return true;
+        }
+    }
+    return false;
+}
+
 // `visibility_weight` of grid.rs: the probe's distance field towards x against the distance to x.
 fn visibility_weight(c: array<vec4<f32>, 9>, p: vec3<f32>, x: vec3<f32>) -> f32 {
     let d = length(x - p);
@@ -109,8 +173,13 @@ fn gather(in: FullscreenVertexOutput) -> @location(0) vec4<f32> {
     let n = surface.normal;
     let base = vec3<i32>(floor((x - grid.origin) / grid.cell_size));
     let dims = vec3<i32>(grid.dims);
-    var c = array<vec4<f32>, 9>();
-    var total = 0.0;
+    let start = x + n * (GATHER_START_OFFSET * grid.cell_size / f32(V_PER_SH));
+    // Every probe's weight, and (in `seen`) only those of the probes no V-cell hides from x; the first
+    // where none is visible (x in a corner, its own surfaces' cells around it).
+    var all_c = array<vec4<f32>, 9>();
+    var seen_c = array<vec4<f32>, 9>();
+    var all_w = 0.0;
+    var seen_w = 0.0;
     for (var k = 0; k < 27; k++) {
         let cell = base + vec3(k % 3 - 1, (k / 3) % 3 - 1, k / 9 - 1);
         if any(cell < vec3(0)) || any(cell >= dims) {
@@ -129,10 +198,23 @@ fn gather(in: FullscreenVertexOutput) -> @location(0) vec4<f32> {
         if w <= 0.0 {
             continue;
         }
+        let visible = !segment_blocked(start, p);
         for (var j = 0u; j < 9u; j++) {
-            c[j] += probe_c[j] * w;
+            all_c[j] += probe_c[j] * w;
+            if visible {
+                seen_c[j] += probe_c[j] * w;
+            }
         }
-        total += w;
+        all_w += w;
+        if visible {
+            seen_w += w;
+        }
+    }
+    var c = all_c;
+    var total = all_w;
+    if seen_w > 1e-6 {
+        c = seen_c;
+        total = seen_w;
     }
     if total <= 1e-6 {
         return vec4(0.0, 0.0, 0.0, 1.0);

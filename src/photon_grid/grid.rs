@@ -220,6 +220,60 @@ impl VGrid {
         blocked
     }
 
+    /// Whether a boundary V-cell lies strictly between the cells of the world points `a` and `b` (the
+    /// gather's visibility test from a surface point to a probe; the CPU twin of `segment_blocked` in
+    /// `shaders/photon_grid/gather.wgsl`).
+    pub fn segment_blocked(&self, a: Vec3, b: Vec3) -> bool {
+        let Some(layout) = self.layout else { return false };
+        let (a, b) = ((a - layout.origin) / layout.v_cell(), (b - layout.origin) / layout.v_cell());
+        let delta = b - a;
+        let len = delta.length();
+        if len < 1e-5 || !len.is_finite() {
+            return false;
+        }
+        let d = delta / len;
+        let mut v = a.floor().as_ivec3();
+        let end = b.floor().as_ivec3();
+        let step = d.signum().as_ivec3();
+        let inv = Vec3::ONE / d.abs().max(Vec3::splat(1e-8));
+        let frac = a - a.floor();
+        let mut t_max = Vec3::select(d.cmplt(Vec3::ZERO), frac, Vec3::ONE - frac) * inv;
+        t_max = Vec3::select(d.abs().cmplt(Vec3::splat(1e-8)), Vec3::splat(3.0e38), t_max);
+        for _ in 0..(len.ceil() as i32 * 3 + 3) {
+            if t_max.x < t_max.y && t_max.x < t_max.z {
+                if t_max.x >= len {
+                    return false;
+                }
+                t_max.x += inv.x;
+                v.x += step.x;
+            } else if t_max.y < t_max.z {
+                if t_max.y >= len {
+                    return false;
+                }
+                t_max.y += inv.y;
+                v.y += step.y;
+            } else {
+                if t_max.z >= len {
+                    return false;
+                }
+                t_max.z += inv.z;
+                v.z += step.z;
+            }
+            if v == end {
+                return false;
+            }
+            if self.occupied(v) {
+                return true;
+            }
+        }
+        false
+    }
+
+    /// The occupancy bits as 32-bit words (bit `i % 32` of word `i / 32` for V-cell `i`), for the GPU.
+    pub fn occupancy_words(&self) -> Vec<u32> {
+        self.bits.iter().flat_map(|w| [*w as u32, (*w >> 32) as u32]).collect()
+    }
+
     /// Walks the V-grid from `origin` (world) along the unit `direction`: the first boundary cell and the
     /// distance at which the ray enters it, or `None` when it leaves the grid. The two-level traversal of
     /// §3.4.2: whole SH cells without a boundary V-cell are crossed in one step.
@@ -755,7 +809,7 @@ pub struct ShField {
 }
 
 /// How far the probe's rays see the back of surfaces before it counts as inside solid geometry.
-const INSIDE_FRACTION: f32 = 0.3;
+const INSIDE_FRACTION: f32 = 0.1;
 
 /// The incoming radiance along one probe ray and the distance to what it sees (§3.4.2–3.4.3).
 fn probe_ray(vgrid: &VGrid, rgrid: &RGrid, env: Option<&Environment>, c: Vec3, d: Vec3, params: &FieldParams) -> (Vec3, f32, bool) {
@@ -850,48 +904,54 @@ impl ShField {
     /// The interpolated coefficients at `x` on a surface with unit normal `n` (§4.1): the probes of the
     /// 27 cells around `x` weighted by `w_sh(d) = 2d³/r³ − 3d²/r² + 1` (`r = r_max`), times a weight that
     /// drops the probes behind the surface (see the module docs). `None` where no probe is near.
-    pub fn coefficients_at(&self, x: Vec3, n: Vec3, r_max: f32) -> Option<[Vec4; 9]> {
+    pub fn coefficients_at(&self, x: Vec3, n: Vec3, r_max: f32, vgrid: Option<&VGrid>) -> Option<[Vec4; 9]> {
         let layout = self.layout?;
+        let start = x + n * (GATHER_START_OFFSET * layout.v_cell());
         let base = ((x - layout.origin) / layout.cell).floor().as_ivec3();
         let dims = layout.dims.as_ivec3();
-        let mut sum = [Vec4::ZERO; 9];
-        let mut total = 0.0;
-        for z in -1..=1 {
-            for y in -1..=1 {
-                for xx in -1..=1 {
-                    let c = base + IVec3::new(xx, y, z);
-                    if c.cmplt(IVec3::ZERO).any() || c.cmpge(dims).any() {
-                        continue;
-                    }
-                    let probe = self.cell_probe[layout.index(c.as_uvec3())];
-                    if probe == u32::MAX {
-                        continue;
-                    }
-                    let p = layout.centre(c.as_uvec3());
-                    let probe = &self.coefficients[probe as usize];
-                    let w = sh_weight((p - x).length(), r_max) * side_weight(n.dot(p - x) / layout.cell) * visibility_weight(probe, p, x);
-                    if w > 0.0 {
-                        for k in 0..9 {
-                            sum[k] += probe[k] * w;
-                        }
-                        total += w;
-                    }
+        // Every probe's weight, and (in `visible`) only those of the probes no V-cell hides from x; the
+        // first where none is visible (x in a corner, its own surfaces' cells around it).
+        let (mut all, mut visible) = (([Vec4::ZERO; 9], 0.0), ([Vec4::ZERO; 9], 0.0));
+        for k in 0..27 {
+            let c = base + IVec3::new(k % 3 - 1, (k / 3) % 3 - 1, k / 9 - 1);
+            if c.cmplt(IVec3::ZERO).any() || c.cmpge(dims).any() {
+                continue;
+            }
+            let index = self.cell_probe[layout.index(c.as_uvec3())];
+            if index == u32::MAX {
+                continue;
+            }
+            let p = layout.centre(c.as_uvec3());
+            let probe = &self.coefficients[index as usize];
+            let w = sh_weight((p - x).length(), r_max) * side_weight(n.dot(p - x) / layout.cell) * visibility_weight(probe, p, x);
+            if w <= 0.0 {
+                continue;
+            }
+            let seen = !vgrid.is_some_and(|g| g.segment_blocked(start, p));
+            for (sum, total) in if seen { vec![&mut all, &mut visible] } else { vec![&mut all] } {
+                for k in 0..9 {
+                    sum[k] += probe[k] * w;
                 }
+                *total += w;
             }
         }
+        let (sum, total) = if visible.1 > 1e-6 { visible } else { all };
         (total > 1e-6).then(|| sum.map(|c| c / total))
     }
 
     /// Irradiance over π (`E/π`, the frame's unit) at `x` facing `n`: the clamped-cosine integral of the
     /// interpolated radiance, exact for the nine coefficients (what the paper's `N_d` hemisphere samples
     /// of §4.2 estimate).
-    pub fn irradiance(&self, x: Vec3, n: Vec3, r_max: f32) -> Vec3 {
-        let Some(c) = self.coefficients_at(x, n, r_max) else { return Vec3::ZERO };
+    pub fn irradiance(&self, x: Vec3, n: Vec3, r_max: f32, vgrid: Option<&VGrid>) -> Vec3 {
+        let Some(c) = self.coefficients_at(x, n, r_max, vgrid) else { return Vec3::ZERO };
         let y = basis(n);
         let e: Vec3 = (0..9).map(|k| c[k].truncate() * (COSINE_LOBE[band(k)] * y[k])).sum();
         (e / PI).max(Vec3::ZERO)
     }
 }
+
+/// The gather's visibility segments start this many V-cells off the surface, along its normal.
+pub const GATHER_START_OFFSET: f32 = 0.75;
 
 /// The paper's distance weight `w_sh(d) = 2d³/r³ − 3d²/r² + 1` for `d < r`, else 0 (§4.1).
 pub fn sh_weight(d: f32, r_max: f32) -> f32 {
@@ -1100,11 +1160,11 @@ mod tests {
         let field = ShField::build(&vgrid, &rgrid, None, &FieldParams { directions: 512, max_distance: 100.0, filter_levels: 1 });
         assert!(!field.coefficients.is_empty());
         // E/π on a patch 0.5 m above the floor, facing down, away from the rim: ρE/π.
-        let e = field.irradiance(Vec3::new(0.4, 0.5, -0.3), Vec3::NEG_Y, 1.75 * layout.cell);
+        let e = field.irradiance(Vec3::new(0.4, 0.5, -0.3), Vec3::NEG_Y, 1.75 * layout.cell, Some(&vgrid));
         println!("irradiance ratio {}", e.x / truth);
         assert!((e.x / truth - 1.0).abs() < 0.1, "E/π {e} against {truth}");
         // Facing up, the sun's direct light is Bevy's: the field sees only the sky-less void above.
-        let up = field.irradiance(Vec3::new(0.4, 0.5, -0.3), Vec3::Y, 1.75 * layout.cell);
+        let up = field.irradiance(Vec3::new(0.4, 0.5, -0.3), Vec3::Y, 1.75 * layout.cell, Some(&vgrid));
         assert!(up.x < 0.02 * truth, "{up}");
     }
 
@@ -1142,7 +1202,7 @@ mod tests {
         let field = ShField::build(&vgrid, &rgrid, None, &FieldParams { directions: 64, max_distance: 10.0, filter_levels: 1 });
         assert!(field.coefficients.iter().flatten().all(|c| c.is_finite()));
         for i in 0..50 {
-            let e = field.irradiance(Vec3::splat(i as f32 * 0.03 - 0.7), fibonacci_sphere(i, 50), 1.75 * layout.cell);
+            let e = field.irradiance(Vec3::splat(i as f32 * 0.03 - 0.7), fibonacci_sphere(i, 50), 1.75 * layout.cell, Some(&vgrid));
             assert!(e.is_finite() && e.min_element() >= 0.0);
         }
         // An empty scene.

@@ -224,6 +224,8 @@ pub struct PhotonGridOutput {
     pub cell_probe: Arc<Vec<u32>>,
     /// Nine `vec4`s per probe: radiance SH (rgb, cd/m² before exposure) and distance SH (a, metres).
     pub coefficients: Arc<Vec<Vec4>>,
+    /// The V-grid's boundary cells, a bit each ([`VGrid::occupancy_words`]): the gather's visibility.
+    pub occupancy: Arc<Vec<u32>>,
 }
 
 /// Main-thread milliseconds of the preparation's stages (the paper's Table 1 rows).
@@ -274,6 +276,9 @@ struct FieldKey {
     settings: PhotonGridSettings,
 }
 
+/// Distances of the SH distance field are clamped to this many SH cells.
+pub const DISTANCE_CELLS: f32 = 4.0;
+
 pub const DIAGNOSTIC_VOXELIZE: DiagnosticPath = DiagnosticPath::const_new("diffuse_gi/photon_voxelize");
 pub const DIAGNOSTIC_TRACE: DiagnosticPath = DiagnosticPath::const_new("diffuse_gi/photon_trace");
 pub const DIAGNOSTIC_RGRID: DiagnosticPath = DiagnosticPath::const_new("diffuse_gi/photon_rgrid");
@@ -315,12 +320,12 @@ impl Plugin for PhotonGridPlugin {
     }
 }
 
-/// The GPU capabilities the gather needs, as `(name, required, found)` for every shortfall: two storage
-/// buffers in the fragment shader, the coefficients' one up to the high preset's size.
+/// The GPU capabilities the gather needs, as `(name, required, found)` for every shortfall: three
+/// storage buffers in the fragment shader.
 pub fn missing_capabilities(limits: &bevy::render::settings::WgpuLimits) -> Vec<crate::Shortfall> {
     let mut missing = Vec::new();
-    if limits.max_storage_buffers_per_shader_stage < 2 {
-        missing.push(("max_storage_buffers_per_shader_stage", 2, limits.max_storage_buffers_per_shader_stage as u64));
+    if limits.max_storage_buffers_per_shader_stage < 3 {
+        missing.push(("max_storage_buffers_per_shader_stage", 3, limits.max_storage_buffers_per_shader_stage as u64));
     }
     missing
 }
@@ -408,7 +413,9 @@ fn update_photon_grid(
     let start = std::time::Instant::now();
     let field_params = FieldParams {
         directions: settings.sh_directions,
-        max_distance: layout.cell * layout.dims.max_element() as f32,
+        // The distance field only needs to resolve what lies within the gather's reach; a far distance
+        // (a ray into the sky) would blur into the near ones of the other directions.
+        max_distance: DISTANCE_CELLS * layout.cell,
         filter_levels: settings.filter_levels,
     };
     state.field = ShField::build(&state.vgrid, &rgrid, snapshot.environment.as_deref(), &field_params);
@@ -431,6 +438,7 @@ fn update_photon_grid(
         },
         cell_probe: Arc::new(field.cell_probe.clone()),
         coefficients: Arc::new(field.coefficients.iter().flatten().copied().collect()),
+        occupancy: Arc::new(state.vgrid.occupancy_words()),
     };
     cost.photon_grid_ms = frame_start.elapsed().as_secs_f32() * 1e3;
     for (path, ms) in [

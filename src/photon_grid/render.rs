@@ -35,6 +35,8 @@ impl SpecializedRenderPipeline for PhotonGridPipelines {
     fn specialize(&self, half_resolution: bool) -> RenderPipelineDescriptor {
         let mut shader_defs = crate::shared_shader_defs();
         shader_defs.push(ShaderDefVal::Int("GI_SCALE".into(), if half_resolution { 2 } else { 1 }));
+        shader_defs.push(ShaderDefVal::Int("V_PER_SH".into(), super::grid::V_PER_SH as i32));
+        shader_defs.push(ShaderDefVal::UInt("GATHER_START_OFFSET_PERCENT".into(), (super::grid::GATHER_START_OFFSET * 100.0).round() as u32));
         RenderPipelineDescriptor {
             label: Some("diffuse_gi_photon_gather_pipeline".into()),
             layout: vec![self.view_layout.clone(), self.field_layout.clone()],
@@ -66,6 +68,7 @@ fn init_photon_grid_pipelines(world: &mut World) {
                 uniform_buffer::<PhotonGridUniform>(false),
                 storage_buffer_read_only::<u32>(false),
                 storage_buffer_read_only::<Vec4>(false),
+                storage_buffer_read_only::<u32>(false),
             ),
         ),
     );
@@ -82,8 +85,8 @@ fn init_photon_grid_pipelines(world: &mut World) {
 pub struct PhotonGridGpu {
     /// The [`PhotonGridOutput::generation`] uploaded.
     generation: Option<u64>,
-    /// Uniform, cell → probe, coefficients; `None` while the field is empty.
-    field: Option<(UniformBuffer<PhotonGridUniform>, Buffer, Buffer)>,
+    /// Uniform, cell → probe, coefficients, V-grid occupancy; `None` while the field is empty.
+    field: Option<(UniformBuffer<PhotonGridUniform>, Buffer, Buffer, Buffer)>,
     pipelines: [Option<CachedRenderPipelineId>; 2],
 }
 
@@ -125,6 +128,7 @@ fn prepare_photon_grid(
             uniform,
             buffer("diffuse_gi_photon_grid_cell_probe", bytemuck::cast_slice(&output.cell_probe)),
             buffer("diffuse_gi_photon_grid_coefficients", bytemuck::cast_slice(&output.coefficients)),
+            buffer("diffuse_gi_photon_grid_occupancy", bytemuck::cast_slice(&output.occupancy)),
         )
     });
 }
@@ -142,7 +146,7 @@ fn gather_photon_grid(
     if gi.0.method != GiMethod::PhotonGrid {
         return;
     }
-    let (Some((uniform, cell_probe, coefficients)), Some(pipeline_id)) = (&gpu.field, gpu.pipelines[gi.0.half_resolution as usize]) else {
+    let (Some((uniform, cell_probe, coefficients, occupancy)), Some(pipeline_id)) = (&gpu.field, gpu.pipelines[gi.0.half_resolution as usize]) else {
         return;
     };
     let (Some(pipeline), Some(uniforms), Some(depth), Some(gbuffer), Some(grid)) = (
@@ -163,7 +167,12 @@ fn gather_photon_grid(
     let field_group = device.create_bind_group(
         "diffuse_gi_photon_gather_field_bind_group",
         &pipeline_cache.get_bind_group_layout(&pipelines.field_layout),
-        &BindGroupEntries::sequential((grid, cell_probe.as_entire_binding(), coefficients.as_entire_binding())),
+        &BindGroupEntries::sequential((
+            grid,
+            cell_probe.as_entire_binding(),
+            coefficients.as_entire_binding(),
+            occupancy.as_entire_binding(),
+        )),
     );
     crate::composite::draw_into_target(
         &mut ctx,
