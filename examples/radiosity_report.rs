@@ -18,9 +18,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use bevy_diffuse_gi::camera::GiMethod;
-use bevy_diffuse_gi::hdr_image::HdrImage;
-use bevy_diffuse_gi::headless::{self, HeadlessMethod, HeadlessOptions, HeadlessReport};
-use bevy_diffuse_gi::metrics::{self, ErrorMetrics};
+use bevy_diffuse_gi::headless::{HeadlessMethod, HeadlessOptions, HeadlessReport};
 use bevy_diffuse_gi::radiosity::RadiositySettings;
 use bevy_diffuse_gi::scenes::StandardScene;
 
@@ -80,27 +78,6 @@ fn options(scene: StandardScene, radiosity: RadiositySettings) -> HeadlessOption
     }
 }
 
-fn render(device: &mut String, options: &HeadlessOptions) -> Result<HeadlessReport, String> {
-    eprint!(".");
-    let report = headless::run(options)?;
-    if let Some(name) = report.sidecar["device"].as_str() {
-        *device = name.to_string();
-    }
-    Ok(report)
-}
-
-fn truth(name: &str) -> Result<HdrImage, String> {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("assets/ground_truth").join(format!("{name}.exr"));
-    HdrImage::read(&path).map_err(|e| format!("{}: {e}", path.display()))
-}
-
-fn compare(image: &HdrImage, truth: &HdrImage) -> Result<ErrorMetrics, String> {
-    metrics::compare(image, truth).map_err(|e| e.to_string())
-}
-
-fn cells(m: &ErrorMetrics) -> String {
-    format!("{:.3} | {:.3} | {:.3} | {:.1} %", m.block_relative_rmse, m.relative_rmse, m.energy_ratio, 100.0 * m.blocks_over_half_off)
-}
 
 /// The solve's figures from a render's sidecar: elements, links, and the Table 1 stages in ms.
 fn solve(report: &HeadlessReport) -> (u64, u64, [f64; 4], u64) {
@@ -131,7 +108,7 @@ fn accuracy(device: &mut String) -> Result<String, String> {
         (StandardScene::SkyRoom, "sky_room"),
     ];
     for (scene, name) in scenes {
-        let reference = truth(name)?;
+        let reference = common::report_truth(name)?;
         let mut configs: Vec<(String, RadiositySettings)> = vec![
             ("low (6×12×12, 4 bounces)".into(), RadiositySettings::LOW),
             ("medium (6×16×16, 8 bounces; default)".into(), RadiositySettings::MEDIUM),
@@ -155,9 +132,9 @@ fn accuracy(device: &mut String) -> Result<String, String> {
             ));
         }
         for (label, settings) in configs {
-            let report = render(device, &options(scene.clone(), settings))?;
-            let m = compare(&report.image, &reference)?;
-            out += &format!("| {name} | {label} | {} | {} |\n", cells(&m), solve(&report).0);
+            let report = common::report_render(device, &options(scene.clone(), settings))?;
+            let m = common::report_compare(&report.image, &reference)?;
+            out += &format!("| {name} | {label} | {} | {} |\n", common::report_cells(&m), solve(&report).0);
         }
     }
     Ok(out)
@@ -171,9 +148,9 @@ fn bounces(device: &mut String) -> Result<String, String> {
     );
     for (bounces, name) in [(1, "cornell_b1"), (2, "cornell_b2"), (4, "cornell"), (8, "cornell"), (16, "cornell")] {
         let settings = RadiositySettings { bounces, stop_threshold: 0.0, ..RadiositySettings::MEDIUM };
-        let report = render(device, &options(StandardScene::Cornell, settings))?;
-        let m = compare(&report.image, &truth(name)?)?;
-        out += &format!("| {bounces} | {name} | {} | {} |\n", cells(&m), solve(&report).3);
+        let report = common::report_render(device, &options(StandardScene::Cornell, settings))?;
+        let m = common::report_compare(&report.image, &common::report_truth(name)?)?;
+        out += &format!("| {bounces} | {name} | {} | {} |\n", common::report_cells(&m), solve(&report).3);
     }
     Ok(out)
 }
@@ -188,7 +165,7 @@ fn stages(device: &mut String) -> Result<String, String> {
     for (scene, name) in [(StandardScene::Cornell, "cornell"), (StandardScene::SponzaLike, "sponza_like")] {
         for bins in [8, 12, 16] {
             let settings = RadiositySettings { bins, bounces: 1, ..RadiositySettings::MEDIUM };
-            let report = render(device, &options(scene.clone(), settings))?;
+            let report = common::report_render(device, &options(scene.clone(), settings))?;
             let (elements, links, t, _) = solve(&report);
             let total: f64 = t.iter().sum();
             let pct = |x: f64| format!("{x:.0} ({:.0} %)", 100.0 * x / total);
@@ -215,7 +192,7 @@ fn scaling(device: &mut String) -> Result<String, String> {
     let mut points: Vec<(f64, [f64; 4])> = Vec::new();
     for divisions in [8.0f32, 12.0, 16.0, 24.0, 32.0, 48.0, 64.0] {
         let settings = RadiositySettings { bins: 12, bounces: 1, element_size: 1.0 / divisions, ..RadiositySettings::MEDIUM };
-        let report = render(device, &options(StandardScene::Cornell, settings))?;
+        let report = common::report_render(device, &options(StandardScene::Cornell, settings))?;
         let (elements, _, t, _) = solve(&report);
         out += &format!("| 1/{divisions} | {elements} | {:.1} | {:.1} | {:.1} | {:.1} |\n", t[0], t[1], t[2], t[3]);
         points.push((elements as f64, t));
@@ -291,13 +268,13 @@ fn leak(device: &mut String) -> Result<String, String> {
          |---|---|---|---|---|---|---|---|\n",
     );
     for (scene, name) in [(StandardScene::Cornell, "cornell"), (StandardScene::Cellar, "cellar")] {
-        let reference = truth(name)?;
+        let reference = common::report_truth(name)?;
         for (size, label) in [(0.0, "mesh vertices"), (1.0 / 16.0, "1/16"), (1.0 / 32.0, "1/32 (default)")] {
             for threshold in [1.0, 0.25] {
                 let settings = RadiositySettings { element_size: size, subdivision_threshold: threshold, ..RadiositySettings::MEDIUM };
-                let report = render(device, &options(scene.clone(), settings))?;
-                let m = compare(&report.image, &reference)?;
-                out += &format!("| {name} | {label} | {threshold} | {} | {} |\n", cells(&m), solve(&report).0);
+                let report = common::report_render(device, &options(scene.clone(), settings))?;
+                let m = common::report_compare(&report.image, &reference)?;
+                out += &format!("| {name} | {label} | {threshold} | {} | {} |\n", common::report_cells(&m), solve(&report).0);
             }
         }
     }
@@ -320,9 +297,9 @@ fn timing(device: &mut String, rounds: usize) -> Result<String, String> {
                     frames: TIMING_FRAMES,
                     ..Default::default()
                 };
-                none.push(common::frame_ms(&render(device, &base)?, TIMED_FRAMES));
+                none.push(common::frame_ms(&common::report_render(device, &base)?, TIMED_FRAMES));
                 let gi = HeadlessOptions { method: HeadlessMethod::Gi(GiMethod::Radiosity), ..base };
-                with.push(common::frame_ms(&render(device, &gi)?, TIMED_FRAMES));
+                with.push(common::frame_ms(&common::report_render(device, &gi)?, TIMED_FRAMES));
             }
             let (a, b) = (common::median(&none), common::median(&with));
             out += &format!("| {name} | {size}² | {a:.1} | {b:.1} | {:.2} |\n", b / a);

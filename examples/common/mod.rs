@@ -7,6 +7,8 @@ use std::path::{Path, PathBuf};
 use bevy::prelude::*;
 use bevy_diffuse_gi::camera::GiMethod;
 use bevy_diffuse_gi::headless::{HeadlessMethod, HeadlessOptions, HeadlessReport, run_and_write};
+use bevy_diffuse_gi::hdr_image::HdrImage;
+use bevy_diffuse_gi::metrics::ErrorMetrics;
 use bevy_diffuse_gi::scenes::StandardScene;
 
 /// No display: renders one 512² frame of `scene` with `method` headless on the first Vulkan device and
@@ -116,6 +118,32 @@ pub fn median(values: &[f64]) -> f64 {
     v.sort_by(f64::total_cmp);
     let n = v.len();
     if n % 2 == 1 { v[n / 2] } else { 0.5 * (v[n / 2 - 1] + v[n / 2]) }
+}
+
+/// One headless render of a report, a dot on stderr for progress; keeps the device's name from the
+/// sidecar in `device`.
+pub fn report_render(device: &mut String, options: &HeadlessOptions) -> Result<HeadlessReport, String> {
+    eprint!(".");
+    let report = bevy_diffuse_gi::headless::run(options)?;
+    if let Some(name) = report.sidecar["device"].as_str() {
+        *device = name.to_string();
+    }
+    Ok(report)
+}
+
+/// The committed ground truth `assets/ground_truth/{name}.exr`.
+pub fn report_truth(name: &str) -> Result<HdrImage, String> {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("assets/ground_truth").join(format!("{name}.exr"));
+    HdrImage::read(&path).map_err(|e| format!("{}: {e}", path.display()))
+}
+
+pub fn report_compare(image: &HdrImage, truth: &HdrImage) -> Result<ErrorMetrics, String> {
+    bevy_diffuse_gi::metrics::compare(image, truth).map_err(|e| e.to_string())
+}
+
+/// `block RMSE | pixel RMSE | energy | blocks > 50 % off` cells of a Markdown row.
+pub fn report_cells(m: &ErrorMetrics) -> String {
+    format!("{:.3} | {:.3} | {:.3} | {:.1} %", m.block_relative_rmse, m.relative_rmse, m.energy_ratio, 100.0 * m.blocks_over_half_off)
 }
 
 /// Median of the last `timed` frame intervals of a headless run, in milliseconds.
