@@ -22,27 +22,29 @@ use bevy_diffuse_gi::prelude::*;
 use bevy_diffuse_gi::scenes::{SceneCamera, StandardScene};
 
 /// The scenes of the show, in order.
-const SCENES: [StandardScene; 6] = [
+const SCENES: [StandardScene; 7] = [
     StandardScene::Cornell,
     StandardScene::Cellar,
     StandardScene::SponzaLike,
     StandardScene::OpenField,
     StandardScene::Dynamic,
     StandardScene::EmissivePanel,
+    StandardScene::SkyRoom,
 ];
 
 /// Seconds per slide.
 const SLIDE_SECONDS: f32 = 12.0;
 
 /// What CI shows, one screenshot each: every scene once and every method at least once (the emissive
-/// panel with radiosity, which needs no light's shadow map).
-const CI_SLIDES: [(usize, GiMethod); 6] = [
+/// panel with radiosity and the sky-lit room with the photon grid, which need no light's shadow map).
+const CI_SLIDES: [(usize, GiMethod); 7] = [
     (0, GiMethod::RadianceHints),
     (1, GiMethod::Vpl),
     (2, GiMethod::RsmGather),
     (3, GiMethod::Drm),
     (4, GiMethod::Vpl),
     (5, GiMethod::Radiosity),
+    (6, GiMethod::PhotonGrid),
 ];
 
 fn main() -> AppExit {
@@ -131,7 +133,7 @@ struct SceneSwitch<'w, 's> {
     asset_server: Res<'w, AssetServer>,
     meshes: ResMut<'w, Assets<Mesh>>,
     materials: ResMut<'w, Assets<StandardMaterial>>,
-    cameras: Query<'w, 's, &'static mut DiffuseGi, With<ShowCamera>>,
+    cameras: Query<'w, 's, (Entity, &'static mut DiffuseGi), With<ShowCamera>>,
     scene_entities: Query<
         'w,
         's,
@@ -145,11 +147,16 @@ struct SceneSwitch<'w, 's> {
 
 impl SceneSwitch<'_, '_> {
     fn show(&mut self, new_scene: bool, scene: usize, method: GiMethod) {
-        for mut gi in &mut self.cameras {
+        for (_, mut gi) in &mut self.cameras {
             gi.method = method;
         }
         if !new_scene {
             return;
+        }
+        // A scene that lights itself with the sky gives the camera its environment map (`sky_room`);
+        // the next scene starts without it.
+        for (camera, _) in &self.cameras {
+            self.commands.entity(camera).remove::<bevy::light::EnvironmentMapLight>();
         }
         for entity in &self.scene_entities {
             self.commands.entity(entity).despawn();

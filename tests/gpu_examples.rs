@@ -34,7 +34,15 @@ const EXAMPLES: &[(&str, &[&str], bool)] = &[
     // The slides: a scene each; only the first shows the no-GI screenshot's scene (cornell).
     (
         "showcase",
-        &["cornell_rh", "cellar_vpl", "sponza_like_rsm", "open_field_drm", "dynamic_vpl", "emissive_panel_radiosity"],
+        &[
+            "cornell_rh",
+            "cellar_vpl",
+            "sponza_like_rsm",
+            "open_field_drm",
+            "dynamic_vpl",
+            "emissive_panel_radiosity",
+            "sky_room_photon-grid",
+        ],
         false,
     ),
 ];

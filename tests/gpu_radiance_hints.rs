@@ -11,7 +11,7 @@ use bevy_diffuse_gi::headless::{HeadlessMethod, HeadlessOptions};
 use bevy_diffuse_gi::metrics;
 use bevy_diffuse_gi::radiance_hints::{DepthOcclusion, GridSizing, RadianceHintsVolume};
 use bevy_diffuse_gi::scenes::StandardScene;
-use common::{Region, check, ground_truth, luminance, render};
+use common::{Region, check, ground_truth, luminance, outliers, render};
 
 fn rh(scene: StandardScene, rh: RadianceHintsVolume) -> HdrImage {
     render(&HeadlessOptions {
@@ -411,42 +411,6 @@ fn a_volume_nested_in_a_coarser_one_takes_over_without_a_seam() {
     }
 }
 
-/// Pixels of `image` off by more than `factor` either way from the truth around them: from the truth's
-/// mean over every 3×3 window within a pixel of them (the truth's per-pixel noise averaged away; Radiance
-/// Hints has none of its own). A pixel on a silhouette agrees with the windows on its own side of the
-/// edge; a speck or a dotted row agrees with none.
-fn outliers(image: &HdrImage, truth: &HdrImage, factor: f32) -> Vec<(u32, u32, f32, f32)> {
-    let (w, h) = (image.width, image.height);
-    let mean_all = {
-        let lit: Vec<f32> = truth.pixels.iter().filter(|p| p[3] > 0.5).map(|p| luminance([p[0], p[1], p[2]])).collect();
-        lit.iter().sum::<f32>() / lit.len().max(1) as f32
-    };
-    let mut found = Vec::new();
-    for y in 2..h - 2 {
-        for x in 2..w - 2 {
-            let p = image.get(x, y);
-            if p[3] < 0.5 {
-                continue;
-            }
-            let a = luminance([p[0], p[1], p[2]]);
-            let windows: Vec<f32> = (0..9)
-                .filter_map(|k| {
-                    let (cx, cy) = (x + k % 3 - 1, y + k / 3 - 1);
-                    truth.region_mean(cx - 1, cy - 1, cx + 2, cy + 2).map(luminance)
-                })
-                .collect();
-            let Some(&t) = windows.iter().max_by(|a, b| a.total_cmp(b)) else {
-                continue;
-            };
-            let too_bright = windows.iter().all(|&t| a > factor * t);
-            let too_dark = windows.iter().all(|&t| a < t / factor);
-            if t > 0.01 * mean_all && (too_bright || too_dark) {
-                found.push((x, y, a, t));
-            }
-        }
-    }
-    found
-}
 
 /// The outliers of the default volume's `cellar` image in rows `rows`, leaving out the door opening
 /// (columns 140..176, rows 75..165: what shows through it is room A, and its 20 cm jambs, thinner than a

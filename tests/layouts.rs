@@ -6,6 +6,7 @@ use bevy::render::render_resource::ShaderType;
 use bevy_diffuse_gi::drm::{DrmFaceJob, DrmGatherUniform, DrmPhoton, DrmPhotonsUniform};
 use bevy_diffuse_gi::emitters::GpuEmitter;
 use bevy_diffuse_gi::radiance_hints::prepare::{RhVolumeUniform, VisibilityRegion};
+use bevy_diffuse_gi::photon_grid::PhotonGridUniform;
 use bevy_diffuse_gi::radiosity::RadiosityVertex;
 use bevy_diffuse_gi::rsm::{GpuGiLight, RsmFaceUniform};
 use bevy_diffuse_gi::rsm_gather::{RsmGatherSample, RsmGatherUniform};
@@ -49,6 +50,7 @@ fn rust_and_wgsl_agree_on_every_gpu_struct() {
         ("drm/drm_types.wgsl", "DrmPhotonsUniform", DrmPhotonsUniform::min_size().get()),
         ("drm/drm_types.wgsl", "DrmGatherUniform", DrmGatherUniform::min_size().get()),
         ("radiosity/display.wgsl", "RadiosityVertex", RadiosityVertex::min_size().get()),
+        ("photon_grid/gather.wgsl", "PhotonGridUniform", PhotonGridUniform::min_size().get()),
     ];
     for (file, name, rust) in cases {
         assert_eq!(wgsl_size(file, name), rust, "{file}: struct {name} and its Rust ShaderType differ in size");
