@@ -414,9 +414,9 @@ pub fn trace_photons(
     vgrid: &VGrid,
     params: &TraceParams,
 ) -> (Vec<Photon>, PhotonStats) {
-    let Some(layout) = vgrid.layout else {
+    if vgrid.layout.is_none() {
         return (Vec::new(), PhotonStats::default());
-    };
+    }
     let Some((lo, hi)) = snapshot.bounds() else {
         return (Vec::new(), PhotonStats::default());
     };
@@ -497,16 +497,10 @@ pub fn trace_photons(
                 }
                 stats.paths += 1;
                 stats.emitted += power;
-                if let Source::Emitter(..) = source {
-                    // The emission leaves the emitter: stored, like a reflection, with its direction
-                    // (unless it meets a surface within a V-cell, as for reflections).
-                    let hidden = snapshot.intersect(origin, direction, epsilon, layout.v_cell()).is_some();
-                    if let (false, Some(c)) = (hidden, layout.cell_of(origin)) {
-                        photons.push(Photon { cell: layout.index(c) as u32, direction, power, blocked: vgrid.blocked_faces(origin) });
-                        stats.stored += 1;
-                    }
-                }
-                trace_path(snapshot, vgrid, params, origin, direction, power, falloff, epsilon, &mut rng, &mut photons, &mut stats);
+                // The emission leaves an emitter: stored, like a reflection, with its direction.
+                let emission = matches!(source, Source::Emitter(..));
+                let path = PathStart { origin, direction, power, falloff, emission };
+                trace_path(snapshot, vgrid, params, path, epsilon, &mut rng, &mut photons, &mut stats);
             }
             (photons, stats)
         })
@@ -593,24 +587,59 @@ fn emit(
     }
 }
 
+/// Where a photon path starts: what [`emit`] gave, and whether it leaves an emitter (its emission is
+/// then stored where it starts).
+struct PathStart {
+    origin: Vec3,
+    direction: Vec3,
+    power: Vec3,
+    falloff: Option<f32>,
+    emission: bool,
+}
+
+/// Stores a photon leaving `at` along `direction` in the SH cell of `at`, given `next`, the surface
+/// its light meets next. Light that meets another surface within a V-cell (a panel 1 mm under a
+/// ceiling, the gap of a corner) lights nothing a ray between the grid's cells can see: it is not
+/// stored (it is still traced on).
+#[expect(clippy::too_many_arguments, reason = "one photon and where it goes")]
+fn store_photon(
+    vgrid: &VGrid,
+    layout: GridLayout,
+    at: Vec3,
+    direction: Vec3,
+    power: Vec3,
+    next: Option<&crate::scene::SceneHit>,
+    photons: &mut Vec<Photon>,
+    stats: &mut PhotonStats,
+) {
+    if next.is_some_and(|next| next.t < layout.v_cell()) {
+        return;
+    }
+    if let Some(c) = layout.cell_of(at) {
+        photons.push(Photon { cell: layout.index(c) as u32, direction, power, blocked: vgrid.blocked_faces(at) });
+        stats.stored += 1;
+    }
+}
+
 /// Follows one photon through up to `max_reflections` stored diffuse reflections.
 #[expect(clippy::too_many_arguments, reason = "one photon path and where it ends up")]
 fn trace_path(
     snapshot: &SceneSnapshot,
     vgrid: &VGrid,
     params: &TraceParams,
-    mut origin: Vec3,
-    mut direction: Vec3,
-    mut power: Vec3,
-    mut falloff: Option<f32>,
+    start: PathStart,
     epsilon: f32,
     rng: &mut rand_pcg::Pcg32,
     photons: &mut Vec<Photon>,
     stats: &mut PhotonStats,
 ) {
     let Some(layout) = vgrid.layout else { return };
+    let PathStart { mut origin, mut direction, mut power, mut falloff, emission } = start;
     let mut reflections = 0;
     let mut hit = snapshot.intersect(origin, direction, epsilon, f32::INFINITY);
+    if emission {
+        store_photon(vgrid, layout, origin, direction, power, hit.as_ref(), photons, stats);
+    }
     loop {
         let Some(h) = hit else {
             stats.escaped += power;
@@ -644,16 +673,9 @@ fn trace_path(
         origin = position + n * epsilon;
         direction = out;
         hit = snapshot.intersect(origin, direction, epsilon, f32::INFINITY);
-        // Light that meets another surface within a V-cell (a panel 1 mm under a ceiling, the gap of a
-        // corner) lights nothing a ray between the grid's cells can see: it is not stored (it is still
-        // traced on).
-        let hidden = hit.as_ref().is_some_and(|next| next.t < layout.v_cell());
         // The photon lies on the side it leaves from, in the SH cell whose faces it lights.
         let stored_at = position + n * (layout.v_cell() * 0.01).max(epsilon);
-        if let (false, Some(c)) = (hidden, layout.cell_of(stored_at)) {
-            photons.push(Photon { cell: layout.index(c) as u32, direction: out, power, blocked: vgrid.blocked_faces(stored_at) });
-            stats.stored += 1;
-        }
+        store_photon(vgrid, layout, stored_at, out, power, hit.as_ref(), photons, stats);
         if reflections >= params.max_reflections {
             stats.truncated += power;
             return;
@@ -942,11 +964,15 @@ impl ShField {
                 continue;
             }
             let seen = !vgrid.is_some_and(|g| g.segment_blocked(start, p));
-            for (sum, total) in if seen { vec![&mut all, &mut visible] } else { vec![&mut all] } {
-                for k in 0..9 {
-                    sum[k] += probe[k] * w;
+            for k in 0..9 {
+                all.0[k] += probe[k] * w;
+                if seen {
+                    visible.0[k] += probe[k] * w;
                 }
-                *total += w;
+            }
+            all.1 += w;
+            if seen {
+                visible.1 += w;
             }
         }
         let (sum, total) = if visible.1 > 1e-6 { visible } else { all };
