@@ -1,7 +1,7 @@
 //! Every windowed example runs in a real window on lavapipe under a virtual X display (Xvfb; `.ci/setup`
 //! installs it) with the fixed-frame harness of `examples/common` (`CiCapturePlugin`): a fixed frame
-//! time, a screenshot with bounced light held off, then one per method (or, for `showcase`, per slide),
-//! then exit. Fails when an example panics or exits with an error, logs an error, shows an all-black 3D
+//! time, a screenshot with bounced light held off, then one per method (or, for `showcase`, per slide)
+//! ten frames apart, then exit. Fails when an example panics or exits with an error, logs an error, shows an all-black 3D
 //! view, shows no more light with a method than without bounced light, or has no tuning panel in a
 //! screenshot. Screenshots are left in `target/example-screenshots/`.
 #![cfg(all(feature = "gpu_tests", feature = "egui"))]
@@ -76,6 +76,9 @@ fn run_example(example: &str, steps: &[&str]) -> Vec<(String, image::RgbImage)> 
         .arg("600")
         .arg(&binary)
         .env("DIFFUSE_GI_CAPTURE", &stem)
+        // Ten frames per method instead of the harness's twenty: every method shows bounced light by
+        // then (Radiance Hints still refining), and the windowed examples were the largest part of CI.
+        .env("DIFFUSE_GI_CAPTURE_INTERVAL", "10")
         .env("WGPU_BACKEND", "vulkan")
         .env("RUST_LOG", "warn")
         .current_dir(env!("CARGO_MANIFEST_DIR"))

@@ -163,8 +163,22 @@ pub fn frame_ms(report: &HeadlessReport, timed: usize) -> f64 {
 ///   the harness sends [`CiStep`]`(i)`, which the example answers by showing what the label says (a method,
 ///   a scene). `DIFFUSE_GI_CAPTURE_STEPS=N` keeps the first `N` steps (the README's pictures take one).
 ///
+/// Frames count only while every pipeline the renderer asked for is compiled (lavapipe compiles them in
+/// the background for seconds, and a frame drawn before that shows nothing of what it waits for), so the
+/// screenshots do not depend on how fast the machine compiles shaders.
+///
 /// The app exits once every screenshot is written.
 pub struct CiCapturePlugin;
+
+/// Whether the render world's pipeline cache has no pipeline waiting to compile (written by the render
+/// world each frame, read by [`ci_capture`]).
+#[derive(Resource, Clone, Default)]
+struct CiPipelinesReady(std::sync::Arc<std::sync::atomic::AtomicBool>);
+
+fn ci_pipelines_ready(cache: Res<bevy::render::render_resource::PipelineCache>, ready: Res<CiPipelinesReady>) {
+    let settled = cache.waiting_pipelines().next().is_none() && cache.pipelines().next().is_some();
+    ready.0.store(settled, std::sync::atomic::Ordering::Relaxed);
+}
 
 /// The labels of the example's CI screenshots after the no-GI one (see [`CiCapturePlugin`]).
 #[derive(Resource, Clone, Debug)]
@@ -195,7 +209,14 @@ impl Plugin for CiCapturePlugin {
         let first = number("DIFFUSE_GI_CAPTURE_FRAME", 30).max(2);
         let interval = number("DIFFUSE_GI_CAPTURE_INTERVAL", 20).max(2);
         let max_steps = number("DIFFUSE_GI_CAPTURE_STEPS", u32::MAX).max(1) as usize;
-        app.insert_resource(bevy::time::TimeUpdateStrategy::ManualDuration(std::time::Duration::from_secs_f64(1.0 / 60.0)))
+        let ready = CiPipelinesReady::default();
+        if let Some(render_app) = app.get_sub_app_mut(bevy::render::RenderApp) {
+            render_app
+                .insert_resource(ready.clone())
+                .add_systems(bevy::render::Render, ci_pipelines_ready.in_set(bevy::render::RenderSystems::Cleanup));
+        }
+        app.insert_resource(ready)
+            .insert_resource(bevy::time::TimeUpdateStrategy::ManualDuration(std::time::Duration::from_secs_f64(1.0 / 60.0)))
             .insert_resource(CiCapture { stem, first, interval, max_steps, count: 0, written: Vec::new() })
             .add_systems(Startup, ci_window_size)
             .add_systems(Last, ci_capture);
@@ -217,6 +238,8 @@ fn ci_window_size(mut windows: Query<&mut Window, With<bevy::window::PrimaryWind
 fn ci_capture(
     mut commands: Commands,
     mut capture: ResMut<CiCapture>,
+    ready: Res<CiPipelinesReady>,
+    mut waited: Local<u32>,
     steps: Option<Res<CiSteps>>,
     mut cameras: Query<&mut bevy_diffuse_gi::camera::DiffuseGi>,
     mut step: MessageWriter<CiStep>,
@@ -225,6 +248,16 @@ fn ci_capture(
     use bevy::render::view::screenshot::{Screenshot, save_to_disk};
     let mut labels = steps.map_or_else(|| vec!["gi".to_string()], |s| s.0.clone());
     labels.truncate(capture.max_steps);
+    if !ready.0.load(std::sync::atomic::Ordering::Relaxed) {
+        // A pipeline still compiling: this frame does not count (at most 6000 in a row).
+        *waited += 1;
+        if *waited > 6000 {
+            error!("pipelines still compiling after {} frames", *waited);
+            exit.write(AppExit::error());
+        }
+        return;
+    }
+    *waited = 0;
     capture.count += 1;
     let (count, first, interval) = (capture.count, capture.first, capture.interval);
     let shoot = |commands: &mut Commands, capture: &mut CiCapture, label: &str| {
