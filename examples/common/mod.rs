@@ -196,6 +196,8 @@ struct CiCapture {
     /// `DIFFUSE_GI_CAPTURE_STEPS`: the most steps to take.
     max_steps: usize,
     count: u32,
+    /// Frames in a row that did not count (a pipeline still compiling).
+    waited: u32,
     written: Vec<PathBuf>,
 }
 
@@ -217,7 +219,7 @@ impl Plugin for CiCapturePlugin {
         }
         app.insert_resource(ready)
             .insert_resource(bevy::time::TimeUpdateStrategy::ManualDuration(std::time::Duration::from_secs_f64(1.0 / 60.0)))
-            .insert_resource(CiCapture { stem, first, interval, max_steps, count: 0, written: Vec::new() })
+            .insert_resource(CiCapture { stem, first, interval, max_steps, count: 0, waited: 0, written: Vec::new() })
             .add_systems(Startup, ci_window_size)
             .add_systems(Last, ci_capture);
     }
@@ -239,7 +241,6 @@ fn ci_capture(
     mut commands: Commands,
     mut capture: ResMut<CiCapture>,
     ready: Res<CiPipelinesReady>,
-    mut waited: Local<u32>,
     steps: Option<Res<CiSteps>>,
     mut cameras: Query<&mut bevy_diffuse_gi::camera::DiffuseGi>,
     mut step: MessageWriter<CiStep>,
@@ -250,14 +251,14 @@ fn ci_capture(
     labels.truncate(capture.max_steps);
     if !ready.0.load(std::sync::atomic::Ordering::Relaxed) {
         // A pipeline still compiling: this frame does not count (at most 6000 in a row).
-        *waited += 1;
-        if *waited > 6000 {
-            error!("pipelines still compiling after {} frames", *waited);
+        capture.waited += 1;
+        if capture.waited > 6000 {
+            error!("pipelines still compiling after {} frames", capture.waited);
             exit.write(AppExit::error());
         }
         return;
     }
-    *waited = 0;
+    capture.waited = 0;
     capture.count += 1;
     let (count, first, interval) = (capture.count, capture.first, capture.interval);
     let shoot = |commands: &mut Commands, capture: &mut CiCapture, label: &str| {
