@@ -28,7 +28,7 @@ fn rh(scene: StandardScene, rh: RadianceHintsVolume) -> HdrImage {
 /// measurements; after the default 8 frames `open_field` is still 0.2 further off.
 ///
 /// The default volume's images are rendered once per scene and shared by the tests that read them
-/// (`cellar`'s takes three: the large scenes and both junction tests), which saves CI a render of
+/// (`cellar`'s by the large scenes and the junction tests, the floor one ignored in CI), which saves a render of
 /// 20 s each. The renderer is deterministic for a still scene, so a shared image tests the same thing.
 fn rh_converged(scene: StandardScene, rh: RadianceHintsVolume) -> HdrImage {
     use std::collections::HashMap;
