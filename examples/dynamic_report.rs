@@ -33,21 +33,11 @@ const TIMED_FRAMES: usize = 12;
 const METHODS: [GiMethod; 2] = [GiMethod::RadianceHints, GiMethod::Vpl];
 
 fn main() -> ExitCode {
-    match run() {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(message) => {
-            eprintln!("dynamic_report: {message}");
-            ExitCode::FAILURE
-        }
-    }
+    common::report_main("dynamic_report", run)
 }
 
 fn run() -> Result<(), String> {
-    let args = common::parse_report_args("dynamic_report", SECTIONS);
-    if std::env::var_os("WGPU_BACKEND").is_none() {
-        // SAFETY: set before any render thread exists.
-        unsafe { std::env::set_var("WGPU_BACKEND", "vulkan") };
-    }
+    let args = common::start_report("dynamic_report", SECTIONS);
     for section in &args.sections {
         let table = match section.as_str() {
             "cost" => cost(args.rounds)?,
