@@ -203,10 +203,9 @@ fn versus(device: &mut String, rounds: usize) -> Result<String, String> {
             for _ in 0..rounds.max(1) {
                 let timed = HeadlessOptions { frames: RH_CONVERGED_FRAMES + TIMED_FRAMES as u32, indirect_only: false, ..o.clone() };
                 let report = common::report_render(device, &timed)?;
-                let frames: Vec<f64> =
-                    report.sidecar["frame_ms"].as_array().map(|a| a.iter().filter_map(|v| v.as_f64()).collect()).unwrap_or_default();
-                let (settling, settled) = frames.split_at(frames.len().saturating_sub(TIMED_FRAMES));
-                let ms = common::median(settled);
+                let frames = common::frame_intervals(&report);
+                let ms = common::frame_ms(&report, TIMED_FRAMES);
+                let settling = &frames[..frames.len().saturating_sub(TIMED_FRAMES)];
                 still.push(ms);
                 refining.push(settling.iter().map(|f| (f - ms).max(0.0)).sum::<f64>());
             }

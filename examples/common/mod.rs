@@ -197,9 +197,13 @@ pub fn report_cells(m: &ErrorMetrics) -> String {
 
 /// Median of the last `timed` frame intervals of a headless run, in milliseconds.
 pub fn frame_ms(report: &HeadlessReport, timed: usize) -> f64 {
-    let frames: Vec<f64> =
-        report.sidecar["frame_ms"].as_array().map(|a| a.iter().filter_map(|v| v.as_f64()).collect()).unwrap_or_default();
+    let frames = frame_intervals(report);
     median(&frames[frames.len().saturating_sub(timed)..])
+}
+
+/// Every main-world frame interval of a headless run since the scene showed, in milliseconds.
+pub fn frame_intervals(report: &HeadlessReport) -> Vec<f64> {
+    report.sidecar["frame_ms"].as_array().map(|a| a.iter().filter_map(|v| v.as_f64()).collect()).unwrap_or_default()
 }
 
 /// The fixed-frame harness CI runs every windowed example with, in a real window (Xvfb) on lavapipe.
