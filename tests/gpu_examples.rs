@@ -1,9 +1,9 @@
 //! Every windowed example runs in a real window on lavapipe under a virtual X display (Xvfb; `.ci/setup`
 //! installs it) with the fixed-frame harness of `examples/common` (`CiCapturePlugin`): a fixed frame
 //! time, a screenshot with bounced light held off, then one per method (or, for `showcase`, per slide)
-//! ten frames apart, then exit. Fails when an example panics or exits with an error, logs an error, shows an all-black 3D
-//! view, shows no more light with a method than without bounced light, or has no tuning panel in a
-//! screenshot. Screenshots are left in `target/example-screenshots/`.
+//! ten frames apart, then exit. Fails when an example panics or exits with an error, logs an error,
+//! shows an all-black 3D view, shows no more light with a method than without bounced light, or has no
+//! tuning panel in a screenshot. Screenshots are left in `target/example-screenshots/`.
 #![cfg(all(feature = "gpu_tests", feature = "egui"))]
 
 mod common;
