@@ -46,7 +46,7 @@ pub use cornell::{CORNELL_EV100, cornell_snapshot, spawn_cornell};
 pub use dynamic::{DYNAMIC_EV100, DynamicScene, dynamic_pose, spawn_dynamic};
 pub use emissive_panel::{EMISSIVE_PANEL_EV100, spawn_emissive_panel};
 pub use near_light::{NEAR_LIGHT_EV100, spawn_near_light};
-pub use open_field::{OPEN_FIELD_EV100, spawn_open_field};
+pub use open_field::{OPEN_FIELD_EV100, open_field_snapshot, spawn_open_field};
 pub use sky_room::{SKY_ROOM_EV100, sky_room_snapshot, spawn_sky_room};
 pub use sponza_like::{SPONZA_EV100, spawn_sponza_like, sponza_like_snapshot};
 
@@ -160,6 +160,19 @@ pub(crate) fn boxes_snapshot(
         triangles.extend(mesh_triangles(&mesh, &transform, material as u32).expect("CPU mesh"));
     }
     SceneSnapshot::build(triangles, materials, vec![], lights)
+}
+
+/// The sun of [`spawn_sun`] as a [`SceneSnapshot`](crate::scene::SceneSnapshot) light, for the CPU
+/// snapshots of the sunlit scenes.
+pub(crate) fn sun_snapshot(direction: Vec3, lux: f32) -> crate::scene::SnapshotLightEntry {
+    crate::scene::SnapshotLightEntry {
+        entity: Entity::PLACEHOLDER,
+        light: crate::scene::SnapshotLight::Directional {
+            direction: GlobalTransform::from(sun_transform(direction)).forward().as_vec3(),
+            illuminance: Vec3::splat(lux),
+        },
+        shadows_enabled: true,
+    }
 }
 
 /// The transform of a directional light whose light travels along `direction` (any length).

@@ -66,3 +66,9 @@ pub fn spawn_open_field(
     );
     super::spawn_scene_camera(commands, CAMERA_POSITION, CAMERA_TARGET, 60.0, ev100, "field camera");
 }
+
+/// The scene as a [`SceneSnapshot`](crate::scene::SceneSnapshot), built on the CPU from the same boxes,
+/// materials and sun as [`spawn_open_field`].
+pub fn open_field_snapshot() -> crate::scene::SceneSnapshot {
+    super::boxes_snapshot(&open_field_boxes(), &PALETTE, vec![super::sun_snapshot(SUN_DIRECTION, SUN_LUX)])
+}

@@ -85,16 +85,7 @@ pub fn spawn_sponza_like(
 /// The scene as a [`SceneSnapshot`](crate::scene::SceneSnapshot), built on the CPU from the same boxes,
 /// materials and sun as [`spawn_sponza_like`].
 pub fn sponza_like_snapshot() -> crate::scene::SceneSnapshot {
-    use crate::scene::{SnapshotLight, SnapshotLightEntry};
-    let light = SnapshotLightEntry {
-        entity: Entity::PLACEHOLDER,
-        light: SnapshotLight::Directional {
-            direction: GlobalTransform::from(super::sun_transform(SUN_DIRECTION)).forward().as_vec3(),
-            illuminance: Vec3::splat(SUN_LUX),
-        },
-        shadows_enabled: true,
-    };
-    super::boxes_snapshot(&sponza_boxes(), &[WALL, FLOOR, COLUMN, BANNER], vec![light])
+    super::boxes_snapshot(&sponza_boxes(), &[WALL, FLOOR, COLUMN, BANNER], vec![super::sun_snapshot(SUN_DIRECTION, SUN_LUX)])
 }
 
 #[cfg(test)]
