@@ -51,6 +51,8 @@ fn rust_and_wgsl_agree_on_every_gpu_struct() {
         ("drm/drm_types.wgsl", "DrmGatherUniform", DrmGatherUniform::min_size().get()),
         ("radiosity/display.wgsl", "RadiosityVertex", RadiosityVertex::min_size().get()),
         ("photon_grid/gather.wgsl", "PhotonGridUniform", PhotonGridUniform::min_size().get()),
+        // The packed irradiance per hint (no ShaderType: the buffer is written by the blend pass only).
+        ("radiance_hints/rh_packed.wgsl", "Packed", bevy_diffuse_gi::radiance_hints::PACKED_BYTES),
     ];
     for (file, name, rust) in cases {
         assert_eq!(wgsl_size(file, name), rust, "{file}: struct {name} and its Rust ShaderType differ in size");

@@ -7,7 +7,7 @@
 // (validity 0, no light of its own) would darken the surfaces around it: it takes the mean of its valid
 // neighbours instead.
 
-#import bevy_diffuse_gi::rh_types::{PI, Sh, SH_COEFS, cell_coords, cell_index, sh_irradiance}
+#import bevy_diffuse_gi::rh_types::{PI, Sh, FIELD_TERMS, cell_coords, cell_index, sh_irradiance}
 #import bevy_diffuse_gi::rh_sampling::{volume, albedo, load_sh}
 
 @group(0) @binding(0) var output: texture_storage_3d<rgba16float, write>;
@@ -33,14 +33,14 @@ fn export_irradiance(@builtin(global_invocation_id) gid: vec3<u32>) {
             let j = cell_index(vec3<u32>(n), res);
             if albedo[j].a >= 0.5 {
                 let s = load_sh(j);
-                for (var i = 0u; i < SH_COEFS; i++) {
+                for (var i = 0u; i < FIELD_TERMS; i++) {
                     sum.c[i] += s.c[i];
                 }
                 count += 1.0;
             }
         }
         if count > 0.0 {
-            for (var i = 0u; i < SH_COEFS; i++) {
+            for (var i = 0u; i < FIELD_TERMS; i++) {
                 sh.c[i] = sum.c[i] / count;
             }
         }

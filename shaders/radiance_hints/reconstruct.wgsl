@@ -1,11 +1,17 @@
 // Reconstruction of indirect light per pixel (Papaioannou 2011, §5, Eq. 6–7), one draw per volume into the
 // camera's GI target with additive blending.
 //
-// For a visible point p with normal n, N_RH positions are laid on a hemisphere of radius r (the cell
-// diagonal) around p + n·r/2 — the first on the normal, the rest on a cone 80° from it, rotated per pixel —
-// so that no hint behind the surface is read. At each, the radiance field is interpolated trilinearly and
-// integrated against the clamped cosine around n (Eq. 7); Eq. 6 averages them:
+// For a visible point p with normal n, N_RH positions are laid around p + n·r/2 — the first there, the rest
+// on a cone 80° from the normal at distance r, rotated per pixel — so that no hint behind the surface is
+// read; r is the cell diagonal times `reconstruction_reach`. At each, the radiance field is interpolated
+// trilinearly and integrated against the clamped cosine around n (Eq. 7); Eq. 6 averages them:
 //     L_r(p) = ρ(p)/(π N_RH) Σ_n E_n(n)
+// Two departures from §5, measured on six scenes (docs/radiance_hints.md, § reconstruction): the paper's
+// r is a whole cell diagonal and its first sample lies on the normal r beyond p + n·r/2. Both read the
+// light up to one and a half diagonals in front of the surface, which is not the light the surface gets
+// near a bright wall (closer to it) or in a concave corner (where it sees the next room through a door:
+// `cellar`'s corner beside its door read 3.2× the truth). Half a diagonal and the first sample at the
+// centre read what the surface sees, and the exact vertical irradiance of floors needs that.
 // This pass writes E/π (the composite multiplies by ρ and the exposure), times a weight that is 1 inside the
 // volume's box and fades to zero over half a cell outside it (surfaces often lie exactly on the box, a volume
 // fitted to a room), and the weight itself in alpha, so overlapping volumes average. A volume nested inside
@@ -19,7 +25,7 @@
 #import bevy_diffuse_gi::rh_types::{PI, world_to_local, local_to_occupancy, sh_irradiance, cell_index}
 #import bevy_diffuse_gi::rh_sampling::{Trilinear, volume, trilinear_masked, occupancy_voxel, sh_at, load_sh}
 #import bevy_diffuse_gi::rh_occupancy::{first_hit_inclusive, first_hit_from}
-#import bevy_diffuse_gi::rh_packed::{PackedField, add_packed, field_linear, field_nonlinear}
+#import bevy_diffuse_gi::rh_packed::{Packed, PackedField, add_packed, add_packed_field, field_linear, field_nonlinear, sh_linear, sh_nonlinear}
 #import bevy_diffuse_gi::gi_frame::{target_pixel, world_at}
 
 @group(0) @binding(0) var<uniform> view: View;
@@ -27,7 +33,7 @@
 @group(0) @binding(2) var gbuffer: texture_2d<u32>;
 // The hints each occupancy voxel may use (visibility.wgsl): 8 bits per voxel, 4 voxels per word.
 @group(2) @binding(1) var<storage, read> visibility: array<u32>;
-// Each hint's field in the compact irradiance form (rh_packed.wgsl), for SH order 2.
+// Each hint's field in the compact irradiance form (rh_packed.wgsl, two words per hint), for SH order 2.
 @group(2) @binding(2) var<storage, read> packed: array<vec4<u32>>;
 
 // 1 at full resolution, 2 at half resolution.
@@ -89,19 +95,33 @@ fn near_field_visibility(world: vec3<f32>, n: vec3<f32>, frame: mat3x3<f32>, rot
 
 // Eq. 7 at one hemisphere sample: the irradiance on a surface with normal n of the interpolated field.
 // SH order 2 reads the packed irradiance form (`rh_packed.wgsl`) and turns it into irradiance linearly,
-// clamped at zero, or with Hazel's non-linear reconstruction, which cannot ring below zero; order 3 reads
-// the SH radiance.
+// clamped at zero, or with Hazel's non-linear reconstruction, which cannot ring below zero; a surface
+// that is not vertical also reads the exact irradiance facing up or down (`rh_types::with_vertical`).
+// Order 3 reads the SH radiance.
 fn sample_irradiance(t: Trilinear, n: vec3<f32>) -> vec3<f32> {
 #if SH_COEFS == 4
+    // Walls (n_y = 0, most of a level's pixels) need neither the vertical word nor a second evaluation.
+    let vertical = n.y * n.y > 1e-4;
     var field: PackedField;
     for (var k = 0u; k < 8u; k++) {
         if t.weights[k] > 0.0 {
-            add_packed(&field, packed[t.cells[k]], t.weights[k]);
+            let c = t.cells[k];
+            if vertical {
+                add_packed_field(&field, Packed(packed[2u * c], packed[2u * c + 1u]), t.weights[k]);
+            } else {
+                add_packed(&field, packed[2u * c], t.weights[k]);
+            }
         }
     }
 #ifdef NONLINEAR_IRRADIANCE
+    if !vertical {
+        return sh_nonlinear(field, n);
+    }
     return field_nonlinear(field, n);
 #else
+    if !vertical {
+        return sh_linear(field, n);
+    }
     return field_linear(field, n);
 #endif
 #else
@@ -151,7 +171,7 @@ fn reconstruct(in: FullscreenVertexOutput) -> @location(0) vec4<f32> {
     let border = select(1.0, 0.35, min(edge.x, min(edge.y, edge.z)) < 0.04);
     return vec4(sh_irradiance(load_sh(cell_index(cell, res)), n) / PI * border, 1.0);
 #else
-    let r = volume.cell.w;
+    let r = volume.cell.w * volume.reconstruction_reach;
     // Positions in the volume's local frame from here on (one transform per pixel, not per sample).
     let origin = world_to_local(volume, world + n * (0.5 * r));
     let start = local_to_occupancy(volume, origin);
@@ -171,7 +191,8 @@ fn reconstruct(in: FullscreenVertexOutput) -> @location(0) vec4<f32> {
             d = frame * vec3(CONE_SIN * azimuth, CONE_COS);
             azimuth = vec2(azimuth.x * turn.x - azimuth.y * turn.y, azimuth.x * turn.y + azimuth.y * turn.x);
         }
-        var p = origin + (volume.local_from_world * vec4(d * r, 0.0)).xyz;
+        // The first sample at the hemisphere's centre, the others r from it.
+        var p = origin + (volume.local_from_world * vec4(d * select(r, 0.0, i == 0u), 0.0)).xyz;
         // A sample position must be reachable from the surface: a cone sample half a metre to the side
         // can otherwise land beyond a thin wall, among the next room's hints. Such a sample is pulled back
         // along its path to a voxel before the obstacle. Positions that still see no hint are skipped.

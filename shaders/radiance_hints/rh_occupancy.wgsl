@@ -83,3 +83,35 @@ fn first_hit_face(a: vec3<f32>, b: vec3<f32>, res: vec3<u32>, skip_end: f32, ski
     }
     return vec4(0.0, 0.0, 0.0, -1.0);
 }
+
+// A start for rays from `a` that is off every surface: `a` itself when its voxel is free, otherwise the
+// point of the nearest free voxel among its 26 neighbours closest to `a` (nudged a hundredth of a voxel
+// inside it); `a` when none is free.
+//
+// Hint centres lie on voxel corners, so a hint a little above a floor or beside a wall often falls in the
+// voxel that holds that surface. Rays from there run along the inside of the surface's voxel layer and
+// meet its neighbouring voxels through their side faces: phantom walls at the hint's own height (a hint
+// 0.2 m above `open_field`'s ground gathered ten times the truth's light from above from them).
+fn free_start(a: vec3<f32>, res: vec3<u32>) -> vec3<f32> {
+    let v0 = vec3<i32>(floor(a));
+    if !occupied(v0, res) {
+        return a;
+    }
+    var best = a;
+    var best_distance = 3.0e38;
+    for (var k = 0; k < 27; k++) {
+        let o = vec3(k % 3, (k / 3) % 3, k / 9) - 1;
+        let v = v0 + o;
+        if k == 13 || any(v < vec3(0)) || any(v >= vec3<i32>(res)) || occupied(v, res) {
+            continue;
+        }
+        let lo = vec3<f32>(v);
+        let nearest = clamp(a, lo + 0.01, lo + 0.99);
+        let d = distance(nearest, a);
+        if d < best_distance {
+            best_distance = d;
+            best = nearest;
+        }
+    }
+    return best;
+}

@@ -1,13 +1,17 @@
-// The compact irradiance form of a hint that the per-pixel reconstruction reads: one `vec4<u32>` instead
-// of the 12 floats of its order-2 SH radiance, written by the blend pass once per update.
+// The compact irradiance form of a hint that the per-pixel reconstruction reads: two `vec4<u32>` instead
+// of the 18 floats of its order-2 field, written by the blend pass once per update.
 //
 // The clamped-cosine convolution of the SH radiance (Ramamoorthi & Hanrahan, Eq. 7 of the paper) gives,
 // per colour channel c, the irradiance on a surface with normal n as
 //     E_c(n) = a_c (1 + d_c · n),   a_c = π Y₀₀ L₀₀,c,   d_c = (2π/3) Y₁ (L₁₁, L₁₋₁, L₁₀)_c / a_c
 // (|d_c| ≤ 2 for any non-negative radiance). a is stored as three 16-bit logarithms (2⁻³²…2³², 0.07 %
 // steps: the HDR range of any scene without a per-volume scale), d as nine 8-bit signed fractions of 2
-// (steps of 0.016, under 1 % of the irradiance of a hint).
+// (steps of 0.016, under 1 % of the irradiance of a hint). The second word holds the exact irradiance
+// facing up and facing down (`rh_types::FIELD_TERMS`), six more 16-bit logarithms: a floor or ceiling
+// reads only the three of its side, and never the first word.
 #define_import_path bevy_diffuse_gi::rh_packed
+
+#import bevy_diffuse_gi::rh_types::with_vertical
 
 const PI: f32 = 3.141592653589793;
 // π Y₀₀ and (2π/3) Y₁: the band-0 and band-1 weights of the irradiance.
@@ -25,7 +29,21 @@ fn decode_log(q: vec3<u32>) -> vec3<f32> {
     return select(vec3(0.0), exp2(vec3<f32>(q) / 1024.0 - 32.0), q != vec3(0u));
 }
 
-// Order-2 SH radiance (coefficients L₀₀, L₁₋₁, L₁₀, L₁₁ as RGB) → packed irradiance.
+// Two words per hint: the SH part and the vertical irradiances.
+struct Packed {
+    sh: vec4<u32>,
+    vertical: vec4<u32>,
+}
+
+// Order-2 SH radiance (coefficients L₀₀, L₁₋₁, L₁₀, L₁₁ as RGB) and the irradiance facing up and down →
+// packed irradiance.
+fn pack_field(c0: vec3<f32>, c1: vec3<f32>, c2: vec3<f32>, c3: vec3<f32>, up: vec3<f32>, down: vec3<f32>) -> Packed {
+    let u = vec3(encode_log(up.x), encode_log(up.y), encode_log(up.z));
+    let d = vec3(encode_log(down.x), encode_log(down.y), encode_log(down.z));
+    let vertical = vec4(u.x | (u.y << 16u), u.z | (d.x << 16u), d.y | (d.z << 16u), 0u);
+    return Packed(pack_irradiance(c0, c1, c2, c3), vertical);
+}
+
 fn pack_irradiance(c0: vec3<f32>, c1: vec3<f32>, c2: vec3<f32>, c3: vec3<f32>) -> vec4<u32> {
     let a = max(BAND0 * c0, vec3(0.0));
     let inv = select(vec3(0.0), 1.0 / a, a > vec3(1e-30));
@@ -47,6 +65,24 @@ struct PackedField {
     br: vec3<f32>,
     bg: vec3<f32>,
     bb: vec3<f32>,
+    // Σ wₖ of the exact irradiance facing up and facing down.
+    up: vec3<f32>,
+    down: vec3<f32>,
+}
+
+fn add_packed_field(f: ptr<function, PackedField>, q: Packed, w: f32) {
+    add_packed(f, q.sh, w);
+    (*f).up += w * vertical_up(q.vertical);
+    (*f).down += w * vertical_down(q.vertical);
+}
+
+// The exact irradiance facing up, and facing down, of a packed hint's second word.
+fn vertical_up(v: vec4<u32>) -> vec3<f32> {
+    return decode_log(vec3(v.x & 0xffffu, v.x >> 16u, v.y & 0xffffu));
+}
+
+fn vertical_down(v: vec4<u32>) -> vec3<f32> {
+    return decode_log(vec3(v.y >> 16u, v.z & 0xffffu, v.z >> 16u));
 }
 
 fn add_packed(f: ptr<function, PackedField>, q: vec4<u32>, w: f32) {
@@ -61,8 +97,18 @@ fn add_packed(f: ptr<function, PackedField>, q: vec4<u32>, w: f32) {
 }
 
 // Linear: a + b·n, clamped at zero.
-fn field_linear(f: PackedField, n: vec3<f32>) -> vec3<f32> {
+fn sh_linear(f: PackedField, n: vec3<f32>) -> vec3<f32> {
     return max(f.a + vec3(dot(f.br, n), dot(f.bg, n), dot(f.bb, n)), vec3(0.0));
+}
+
+// The straight up or down normal on n's side.
+fn vertical_of(n: vec3<f32>) -> vec3<f32> {
+    return vec3(0.0, select(-1.0, 1.0, n.y >= 0.0), 0.0);
+}
+
+// The linear form with the exact vertical irradiances (`rh_types::with_vertical`).
+fn field_linear(f: PackedField, n: vec3<f32>) -> vec3<f32> {
+    return with_vertical(sh_linear(f, n), sh_linear(f, vertical_of(n)), f.up, f.down, n);
 }
 
 // Hazel's non-linear reconstruction of L1 irradiance ("Reconstructing diffuse lighting from spherical
@@ -85,6 +131,11 @@ fn hazel(a: f32, b: vec3<f32>, n: vec3<f32>) -> f32 {
     return a * (alpha + (1.0 - alpha) * (p + 1.0) * pow(max(q, 0.0), p));
 }
 
-fn field_nonlinear(f: PackedField, n: vec3<f32>) -> vec3<f32> {
+fn sh_nonlinear(f: PackedField, n: vec3<f32>) -> vec3<f32> {
     return vec3(hazel(f.a.r, f.br, n), hazel(f.a.g, f.bg, n), hazel(f.a.b, f.bb, n));
+}
+
+// Hazel's form with the exact vertical irradiances (`rh_types::with_vertical`).
+fn field_nonlinear(f: PackedField, n: vec3<f32>) -> vec3<f32> {
+    return with_vertical(sh_nonlinear(f, n), sh_nonlinear(f, vertical_of(n)), f.up, f.down, n);
 }

@@ -2,7 +2,7 @@
 // Bind group 1 of every pass that reads a volume.
 #define_import_path bevy_diffuse_gi::rh_sampling
 
-#import bevy_diffuse_gi::rh_types::{RhVolume, Sh, SH_COEFS, SH_FLOATS, world_to_local, cell_index, local_to_occupancy}
+#import bevy_diffuse_gi::rh_types::{RhVolume, Sh, FIELD_TERMS, SH_FLOATS, world_to_local, cell_index, local_to_occupancy}
 #import bevy_diffuse_gi::rh_occupancy::first_hit_from
 
 @group(1) @binding(0) var<uniform> volume: RhVolume;
@@ -124,7 +124,7 @@ fn occupancy_voxel(local: vec3<f32>) -> vec3<u32> {
 fn load_sh(cell: u32) -> Sh {
     var sh: Sh;
     let base = cell * SH_FLOATS;
-    for (var i = 0u; i < SH_COEFS; i++) {
+    for (var i = 0u; i < FIELD_TERMS; i++) {
         sh.c[i] = vec3(source_sh[base + 3u * i], source_sh[base + 3u * i + 1u], source_sh[base + 3u * i + 2u]);
     }
     return sh;
@@ -141,7 +141,7 @@ fn sh_at(t: Trilinear) -> Sh {
             continue;
         }
         let base = t.cells[k] * SH_FLOATS;
-        for (var i = 0u; i < SH_COEFS; i++) {
+        for (var i = 0u; i < FIELD_TERMS; i++) {
             sh.c[i] += w * vec3(source_sh[base + 3u * i], source_sh[base + 3u * i + 1u], source_sh[base + 3u * i + 2u]);
         }
     }

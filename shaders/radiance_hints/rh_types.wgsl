@@ -4,8 +4,16 @@
 
 // Coefficients per colour channel: 4 (SH order 2) or 9 (order 3), from the pipeline's shader defs.
 const SH_COEFS: u32 = #{SH_COEFS}u;
-// Floats per hint in the SH buffers: RGB per coefficient, coefficient-major.
-const SH_FLOATS: u32 = SH_COEFS * 3u;
+// RGB terms per hint in the field buffers (`radiance_hints::field_terms`): the SH coefficients, then the
+// exact irradiance of a surface facing up (+Y, term FIELD_UP) and of one facing down (−Y, FIELD_DOWN).
+// SH of order 2 or 3 cannot hold those next to strong light from the other side: over a sunlit floor the
+// field holds the floor's own light, arriving from below and around the horizon, and Eq. 7 then gives a
+// surface facing up a third to a half of the field's mean where the truth is the weak light from above.
+const FIELD_TERMS: u32 = #{FIELD_TERMS}u;
+const FIELD_UP: u32 = SH_COEFS;
+const FIELD_DOWN: u32 = SH_COEFS + 1u;
+// Floats per hint in the field buffers: RGB per term, term-major.
+const SH_FLOATS: u32 = FIELD_TERMS * 3u;
 const PI: f32 = 3.141592653589793;
 
 struct RhVolume {
@@ -37,6 +45,10 @@ struct RhVolume {
     depth_occlusion_samples: u32,
     depth_occlusion_strength: f32,
     reconstruction_samples: u32,
+    // The reconstruction hemisphere's offset and radius in cell diagonals (§5: 1).
+    reconstruction_reach: f32,
+    // 1: the blend adds the geometric tail of the extra bounces not run.
+    bounce_tail: u32,
     // Workgroups of 64 covering every hint.
     workgroups: u32,
     // Index of the bounce being computed (1 = first extra bounce).
@@ -65,8 +77,9 @@ fn local_to_occupancy(v: RhVolume, local: vec3<f32>) -> vec3<f32> {
     return (local + 0.5) * vec3<f32>(v.occupancy_resolution.xyz);
 }
 
+// A hint's field: SH radiance coefficients and the two vertical irradiances (see FIELD_TERMS).
 struct Sh {
-    c: array<vec3<f32>, SH_COEFS>,
+    c: array<vec3<f32>, FIELD_TERMS>,
 }
 
 // The real SH basis at unit direction d (see src/sh.rs).
@@ -97,22 +110,42 @@ fn cosine_lobe(i: u32) -> f32 {
     return PI / 4.0;
 }
 
-// Adds value · Y(d): one sample of the projection integral (Eq. 5).
+// Adds value · Y(d): one sample of the projection integral (Eq. 5), and value · max(0, ±d_y) to the
+// irradiance facing up and down (the same Monte Carlo estimate of the clamped-cosine integral, exact in
+// the limit).
 fn sh_add(sh: ptr<function, Sh>, d: vec3<f32>, value: vec3<f32>) {
     let y = sh_basis(d);
     for (var i = 0u; i < SH_COEFS; i++) {
         (*sh).c[i] += value * y[i];
     }
+    (*sh).c[FIELD_UP] += value * max(d.y, 0.0);
+    (*sh).c[FIELD_DOWN] += value * max(-d.y, 0.0);
 }
 
-// Irradiance ∫ L(ω) max(0, n·ω) dω on a surface with normal n (Eq. 7), clamped at zero against ringing.
-fn sh_irradiance(sh: Sh, n: vec3<f32>) -> vec3<f32> {
+// Eq. 7 alone: the SH part's irradiance at n, unclamped.
+fn sh_only_irradiance(sh: Sh, n: vec3<f32>) -> vec3<f32> {
     let y = sh_basis(n);
     var e = vec3(0.0);
     for (var i = 0u; i < SH_COEFS; i++) {
         e += sh.c[i] * (cosine_lobe(i) * y[i]);
     }
-    return max(e, vec3(0.0));
+    return e;
+}
+
+// `e`, the irradiance some reconstruction of the SH part gives at n, with its vertical part replaced by
+// the exact one: e + n_y² (E_exact(±Y) − e_±Y), where e_±Y is that reconstruction facing straight up or
+// down. Floors and ceilings get the exact value, walls keep the SH one, and slopes blend.
+fn with_vertical(e: vec3<f32>, e_vertical: vec3<f32>, up: vec3<f32>, down: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
+    let exact = select(down, up, n.y >= 0.0);
+    return max(e + n.y * n.y * (exact - e_vertical), vec3(0.0));
+}
+
+// Irradiance ∫ L(ω) max(0, n·ω) dω on a surface with normal n: Eq. 7 (clamped at zero against ringing)
+// with the exact vertical irradiances (`with_vertical`).
+fn sh_irradiance(sh: Sh, n: vec3<f32>) -> vec3<f32> {
+    let vertical = vec3(0.0, select(-1.0, 1.0, n.y >= 0.0), 0.0);
+    let e_vertical = max(sh_only_irradiance(sh, vertical), vec3(0.0));
+    return with_vertical(max(sh_only_irradiance(sh, n), vec3(0.0)), e_vertical, sh.c[FIELD_UP], sh.c[FIELD_DOWN], n);
 }
 
 fn cell_coords(index: u32, res: vec3<u32>) -> vec3<u32> {

@@ -49,3 +49,23 @@ struct Emitter {
     // rgb: flux in lumens carried by this sample
     flux: vec4<f32>,
 }
+
+// Texture coordinates of world point `p` in RSM face `face` (x right, y down), and in z whether it lies in
+// front of the face.
+fn face_uv(face: RsmFace, p: vec3<f32>) -> vec3<f32> {
+    let clip = face.clip_from_world * vec4(p, 1.0);
+    let ndc = clip.xy / max(clip.w, 1e-6);
+    return vec3(vec2(ndc.x, -ndc.y) * 0.5 + 0.5, select(0.0, 1.0, clip.w > 1e-6));
+}
+
+// The cube face (+X, −X, +Y, −Y, +Z, −Z, the order of a point light's faces) direction `d` falls into.
+fn cube_face(d: vec3<f32>) -> u32 {
+    let a = abs(d);
+    if a.x >= a.y && a.x >= a.z {
+        return select(1u, 0u, d.x > 0.0);
+    }
+    if a.y >= a.z {
+        return select(3u, 2u, d.y > 0.0);
+    }
+    return select(5u, 4u, d.z > 0.0);
+}

@@ -17,7 +17,7 @@
 
 #import bevy_core_pipeline::fullscreen_vertex_shader::FullscreenVertexOutput
 #import bevy_render::view::View
-#import bevy_diffuse_gi::rsm_types::{GiLight, RsmFace, LIGHT_KIND_DIRECTIONAL}
+#import bevy_diffuse_gi::rsm_types::{GiLight, RsmFace, LIGHT_KIND_DIRECTIONAL, face_uv, cube_face}
 #import bevy_diffuse_gi::gi_frame::{surface_at, finite_or_zero}
 
 struct RsmGatherUniform {
@@ -47,25 +47,6 @@ const PI: f32 = 3.141592653589793;
 // 1 at full resolution, 2 at half resolution.
 const GI_SCALE: i32 = #{GI_SCALE};
 
-// Texture coordinates of world point `p` in a face (x right, y down), and whether it lies in front.
-fn face_uv(face: u32, p: vec3<f32>) -> vec3<f32> {
-    let clip = faces[face].clip_from_world * vec4(p, 1.0);
-    let ndc = clip.xy / max(clip.w, 1e-6);
-    return vec3(vec2(ndc.x, -ndc.y) * 0.5 + 0.5, select(0.0, 1.0, clip.w > 1e-6));
-}
-
-// The cube face (+X, −X, +Y, −Y, +Z, −Z) direction `d` falls into.
-fn cube_face(d: vec3<f32>) -> u32 {
-    let a = abs(d);
-    if a.x >= a.y && a.x >= a.z {
-        return select(1u, 0u, d.x > 0.0);
-    }
-    if a.y >= a.z {
-        return select(3u, 2u, d.y > 0.0);
-    }
-    return select(5u, 4u, d.z > 0.0);
-}
-
 // Σ over one light's sampled texels of Φ_p cos θ_p cos θ / (π (d² + A/π)), i.e. the irradiance at x.
 fn gather_light(light: GiLight, x: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
     let res = f32(light.resolution);
@@ -86,7 +67,7 @@ fn gather_light(light: GiLight, x: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
         b = cross(omega, t);
     } else {
         // Behind a spot light (its ceiling) x has no projection: the disk is centred on the map.
-        let projected = face_uv(light.first_layer, x);
+        let projected = face_uv(faces[light.first_layer], x);
         centre = select(vec2(0.5), clamp(projected.xy, vec2(0.0), vec2(1.0)), projected.z > 0.0);
     }
     var e = vec3(0.0);
@@ -105,7 +86,7 @@ fn gather_light(light: GiLight, x: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
             let d = cos(theta) * omega + sin(theta) * (around.x * t + around.y * b);
             let f = cube_face(d);
             layer = light.first_layer + f;
-            uv = face_uv(layer, faces[layer].light_position.xyz + d).xy;
+            uv = face_uv(faces[layer], faces[layer].light_position.xyz + d).xy;
             // The sample covers the solid angle (weight × π sin θ / ρ); a texel of the face it lands in
             // covers (2/res)² cos³α (α off the face's axis).
             let a = abs(d);

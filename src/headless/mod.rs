@@ -718,7 +718,7 @@ fn sidecar(
                 "bounce_threshold": rh.bounce_threshold, "temporal_blend": rh.temporal_blend,
                 "albedo_volume": rh.albedo_volume,
                 "depth_occlusion": rh.depth_occlusion.map(|d| json!({"samples": d.samples, "strength": d.strength})),
-                "reconstruction_samples": rh.reconstruction_samples, "intensity": rh.intensity,
+                "reconstruction_samples": rh.reconstruction_samples, "reconstruction_reach": rh.reconstruction_reach, "intensity": rh.intensity,
                 "memory_bytes": rh.memory_bytes(), "half_resolution": o.half_resolution,
                 "output": format!("{:?}", o.gi_output),
                 "secondary": format!("{:?}", rh.secondary), "voxel_visibility": rh.voxel_visibility,

@@ -435,6 +435,9 @@ pub struct RhArgs {
     /// Reconstruction samples per pixel N_RH
     #[arg(long, value_name = "N")]
     pub rh_reconstruction: Option<u32>,
+    /// How far off the surface the reconstruction reads the field, cell diagonals (§5: 1)
+    #[arg(long, value_name = "CELLS")]
+    pub rh_reach: Option<f32>,
     /// Near-field occlusion reach in cell diagonals (0 = off)
     #[arg(long, value_name = "CELLS")]
     pub rh_near_field: Option<f32>,
@@ -731,6 +734,7 @@ impl RhArgs {
             temporal_blend <- rh_blend,
             bounce_threshold <- rh_threshold,
             reconstruction_samples <- rh_reconstruction,
+            reconstruction_reach <- rh_reach,
             near_field_occlusion <- rh_near_field,
             albedo_volume <- rh_albedo,
             refinement_updates <- rh_refinement,

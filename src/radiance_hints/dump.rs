@@ -11,7 +11,7 @@ use bevy::render::renderer::{RenderDevice, RenderQueue};
 use serde_json::json;
 
 use super::prepare::RhVolumesGpu;
-use super::sh_floats;
+use super::{field_floats, field_terms};
 
 /// Write the first Radiance Hints volume to `path` (JSON: resolution, SH order, `world_from_local`, per
 /// hint the SH coefficients, distances and albedo/validity, the reconstruction's visibility masks (four
@@ -48,7 +48,7 @@ pub(crate) fn dump_volume(
     let (Some(dump), Some(v)) = (dump, volumes.volumes.first()) else {
         return;
     };
-    let floats = sh_floats(v.settings.sh_order);
+    let floats = field_floats(v.settings.sh_order);
     let hints = v.hints as usize;
     let result = read_buffer::<f32>(&device, &queue, &v.result);
     let distances = read_buffer::<f32>(&device, &queue, &v.distances);
@@ -57,6 +57,8 @@ pub(crate) fn dump_volume(
     let text = json!({
         "resolution": v.settings.resolution.to_array(),
         "sh_coefficients": v.settings.sh_order.coefficients(),
+        // RGB terms per hint in "sh": the SH coefficients, then the irradiance facing up and facing down.
+        "field_terms": field_terms(v.settings.sh_order),
         "world_from_local": v.world_from_local.to_cols_array(),
         "updates_left": v.updates_left,
         "sh": result[..hints * floats].to_vec(),

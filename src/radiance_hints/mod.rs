@@ -172,15 +172,24 @@ pub use settings::{DepthOcclusion, GridSizing, IrradianceReconstruction, Radianc
 
 use crate::sh::ShOrder;
 
-/// Floats per hint in the SH buffers: RGB for each coefficient.
-pub const fn sh_floats(order: ShOrder) -> usize {
-    3 * order.coefficients()
+/// Terms a hint's field holds beside its SH coefficients: the exact irradiance of a surface facing up
+/// (+Y) and of one facing down (−Y), which SH of order 2 or 3 cannot hold next to strong light from the
+/// other side (a floor under a field lit by the floor itself; see `shaders/radiance_hints/rh_types.wgsl`).
+pub const VERTICAL_TERMS: usize = 2;
+
+/// RGB terms per hint in the field buffers: the SH coefficients, then the two vertical irradiances (the
+/// WGSL side's `FIELD_TERMS`, passed as a shader def).
+pub const fn field_terms(order: ShOrder) -> usize {
+    order.coefficients() + VERTICAL_TERMS
 }
 
-/// `vec4` blocks per hint needed for the SH coefficients (3 for order 2, 7 for order 3).
-pub const fn sh_blocks(order: ShOrder) -> usize {
-    sh_floats(order).div_ceil(4)
+/// Floats per hint in the field buffers: RGB for each term of [`field_terms`].
+pub const fn field_floats(order: ShOrder) -> usize {
+    3 * field_terms(order)
 }
+
+/// Bytes per hint of the packed irradiance the reconstruction reads (`rh_packed.wgsl`): two `vec4<u32>`.
+pub const PACKED_BYTES: u64 = 32;
 
 /// The Radiance Hints shaders.
 #[derive(Resource, Clone)]
@@ -207,7 +216,7 @@ pub fn missing_capabilities(limits: &bevy::render::settings::WgpuLimits, compute
     };
     need("compute shaders (DownlevelFlags::COMPUTE_SHADERS)", 1, compute as u64);
     need("indirect dispatch (DownlevelFlags::INDIRECT_EXECUTION)", 1, indirect as u64);
-    need("max_storage_buffers_per_shader_stage", 7, limits.max_storage_buffers_per_shader_stage as u64);
+    need("max_storage_buffers_per_shader_stage", 8, limits.max_storage_buffers_per_shader_stage as u64);
     need("max_storage_textures_per_shader_stage", 1, limits.max_storage_textures_per_shader_stage as u64);
     let threads = crate::WORKGROUP_SIZE as u64;
     need("max_compute_workgroup_size_x", threads, limits.max_compute_workgroup_size_x as u64);

@@ -19,7 +19,7 @@ use crate::camera::GiMethod;
 use crate::composite::{ExtractedDiffuseGi, GI_TARGET_FORMAT};
 use super::settings::RadianceHintsVolume;
 use super::voxelize::VoxelChange;
-use super::{RhShaders, sh_floats};
+use super::{PACKED_BYTES, RhShaders, field_floats, field_terms};
 use crate::emitters::{EmitterSamples, GpuEmitter};
 use crate::rsm::RsmAtlas;
 use crate::sh::ShOrder;
@@ -49,6 +49,9 @@ pub struct RhVolumeUniform {
     pub depth_occlusion_samples: u32,
     pub depth_occlusion_strength: f32,
     pub reconstruction_samples: u32,
+    pub reconstruction_reach: f32,
+    /// 1 when the blend adds the geometric tail of the bounces not run (`blend.wgsl`).
+    pub bounce_tail: u32,
     pub workgroups: u32,
     pub bounce: u32,
     pub emitter_count: u32,
@@ -153,7 +156,7 @@ pub const NESTED_BLEND_CELLS: f32 = 2.0;
 pub struct RhPipelines {
     /// Group 0 of the injection: uniform, delta, sum, distances.
     pub inject_output_layout: BindGroupLayoutDescriptor,
-    /// Group 1 of the injection: the RSM atlas, the GI lights and the emitter samples.
+    /// Group 1 of the injection: the RSM atlas, the GI lights, the emitter samples and the RSM faces.
     pub rsm_layout: BindGroupLayoutDescriptor,
     /// Group 3 of the injection with §8 occlusion: the camera's view and depth.
     pub depth_layout: BindGroupLayoutDescriptor,
@@ -206,6 +209,7 @@ impl FromWorld for RhPipelines {
                         texture_2d_array(unfilterable),
                         ro(),
                         ro(),
+                        ro(),
                     ),
                 ),
             ),
@@ -230,7 +234,7 @@ impl FromWorld for RhPipelines {
             ),
             blend_layout: BindGroupLayoutDescriptor::new(
                 "diffuse_gi_rh_blend_layout",
-                &BindGroupLayoutEntries::sequential(compute, (uniform(), ro(), rw(), rw())),
+                &BindGroupLayoutEntries::sequential(compute, (uniform(), ro(), rw(), rw(), ro(), ro(), ro())),
             ),
             scroll_layout: BindGroupLayoutDescriptor::new(
                 "diffuse_gi_rh_scroll_layout",
@@ -271,6 +275,7 @@ impl FromWorld for RhPipelines {
 fn sh_defs(order: ShOrder) -> Vec<ShaderDefVal> {
     let mut defs = crate::shared_shader_defs();
     defs.push(ShaderDefVal::UInt("SH_COEFS".into(), order.coefficients() as u32));
+    defs.push(ShaderDefVal::UInt("FIELD_TERMS".into(), field_terms(order) as u32));
     defs
 }
 
@@ -420,7 +425,7 @@ pub struct RhVolumeGpu {
     pub visibility_previous: Option<Buffer>,
     /// How the masks were last redone (for measurements and tests).
     pub last_visibility_update: VisibilityUpdate,
-    /// The displayed result in the reconstruction's compact irradiance form (`rh_packed.wgsl`, 16 B per
+    /// The displayed result in the reconstruction's compact irradiance form (`rh_packed.wgsl`, 32 B per
     /// hint), written by the blend.
     pub packed: Buffer,
     /// The region uniform of the visibility-mask pass.
@@ -608,7 +613,7 @@ impl RhVolumeGpu {
     fn new(device: &RenderDevice, entity: Entity, settings: &RadianceHintsVolume) -> Self {
         let hints = settings.hint_count();
         let workgroups = hints.div_ceil(WORKGROUP_SIZE);
-        let sh_bytes = hints as u64 * sh_floats(settings.sh_order) as u64 * 4;
+        let sh_bytes = hints as u64 * field_floats(settings.sh_order) as u64 * 4;
         let storage = BufferUsages::STORAGE | BufferUsages::COPY_DST | BufferUsages::COPY_SRC;
         Self {
             entity,
@@ -633,7 +638,7 @@ impl RhVolumeGpu {
             visibility: buffer(device, "diffuse_gi_rh_visibility", occupancy_words(settings.resolution) * 32, storage),
             visibility_previous: None,
             last_visibility_update: VisibilityUpdate::None,
-            packed: buffer(device, "diffuse_gi_rh_packed", hints as u64 * 16, storage),
+            packed: buffer(device, "diffuse_gi_rh_packed", hints as u64 * PACKED_BYTES, storage),
             visibility_region: buffer(
                 device,
                 "diffuse_gi_rh_visibility_region",
@@ -835,8 +840,9 @@ pub(crate) fn prepare_rh_volumes(
         gpu.update_this_frame = gpu.updates_left > 0;
         gpu.frames_reused = if gpu.update_this_frame { 0 } else { gpu.frames_reused.saturating_add(1) };
         if gpu.update_this_frame && !gpu.motion_update {
-            // The decide passes count the extra bounces of this update from zero.
-            queue.write_buffer(&gpu.stats, 0, bytemuck::bytes_of(&0u32));
+            // The decide passes count the extra bounces of this update, and the energies of the last two,
+            // from zero.
+            queue.write_buffer(&gpu.stats, 0, bytemuck::bytes_of(&[0u32; 4]));
         }
 
         // Uniforms: one for injection/blend/sampling, one per extra bounce.
@@ -867,6 +873,8 @@ pub(crate) fn prepare_rh_volumes(
             depth_occlusion_samples: s.depth_occlusion.map_or(0, |o| o.samples),
             depth_occlusion_strength: s.depth_occlusion.map_or(0.0, |o| o.strength),
             reconstruction_samples: s.reconstruction_samples,
+            reconstruction_reach: s.reconstruction_reach,
+            bounce_tail: (!gpu.motion_update && s.extra_bounces > 0) as u32,
             workgroups: gpu.workgroups,
             bounce: 0,
             emitter_count: state.emitter_count,
@@ -1054,6 +1062,9 @@ pub(crate) fn prepare_rh_bind_groups(
                     v.sum.as_entire_binding(),
                     v.result.as_entire_binding(),
                     v.packed.as_entire_binding(),
+                    v.delta[0].as_entire_binding(),
+                    v.delta[1].as_entire_binding(),
+                    v.stats.as_entire_binding(),
                 )),
             ),
             scroll: device.create_bind_group(

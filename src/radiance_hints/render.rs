@@ -85,7 +85,7 @@ fn update_volumes(
     if !state.volumes.iter().any(|v| wants(v) && (v.update_this_frame || v.export.is_some())) {
         return;
     }
-    let (Some(lights), Some(emitters)) = (atlas.lights.binding(), state.emitters.as_ref()) else {
+    let (Some(lights), Some(faces), Some(emitters)) = (atlas.lights.binding(), atlas.faces.binding(), state.emitters.as_ref()) else {
         return;
     };
     let device = ctx.render_device().clone();
@@ -100,6 +100,7 @@ fn update_volumes(
             &atlas.flux_view,
             lights,
             emitters.as_entire_binding(),
+            faces,
         )),
     );
 

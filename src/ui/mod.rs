@@ -513,6 +513,7 @@ fn volume_ui(ui: &mut egui::Ui, label: &str, volume: &mut Mut<RadianceHintsVolum
         (false, _) => v.depth_occlusion = None,
     }
     ui.add(egui::Slider::new(&mut v.reconstruction_samples, 1..=16).text("reconstruction samples N_RH"));
+    ui.add(egui::Slider::new(&mut v.reconstruction_reach, 0.1..=2.0).text("reconstruction reach (cell diagonals)"));
     ui.add(egui::Slider::new(&mut v.near_field_occlusion, 0.0..=2.0).text("near-field occlusion (cell diagonals, 0 = off)"));
     ui.horizontal(|ui| {
         ui.label("irradiance from SH:");
