@@ -28,7 +28,7 @@ fn rh(scene: StandardScene, rh: RadianceHintsVolume) -> HdrImage {
 /// measurements; after the default 8 frames `open_field` is still 0.2 further off.
 ///
 /// The default volume's images are rendered once per scene and shared by the tests that read them
-/// (`cellar`'s by the large scenes and the junction tests, the floor one ignored in CI), which saves a render of
+/// (`cellar`'s by the large scenes, the junction tests and the unlit-room test), which saves a render of
 /// 20 s each. The renderer is deterministic for a still scene, so a shared image tests the same thing.
 fn rh_converged(scene: StandardScene, rh: RadianceHintsVolume) -> HdrImage {
     use std::collections::HashMap;
@@ -95,17 +95,17 @@ fn cornell_radiance_hints_bleed_colour_fill_shadows_and_match_the_ground_truth()
     let shadow = luminance(BOX_SHADOW.mean(test, &image));
     check(test, shadow > 0.1, &image, Some(&truth), format!("no indirect light in the shadow: {shadow}"));
 
-    // Against the path-traced indirect light. Measured on lavapipe: block relative RMSE 0.2057, energy
-    // 0.954; the margins absorb driver and sampling differences.
+    // Against the path-traced indirect light, after 8 frames (the refinement still running). Measured on
+    // lavapipe: block relative RMSE 0.123, energy 1.06; the issue's targets are ≤ 0.17 and ±10 %.
     let m = metrics::compare(&image, &truth).expect("comparable images");
     eprintln!("{test}: block {:.4}, energy {:.4}", m.block_relative_rmse, m.energy_ratio);
     check(
         test,
-        m.block_relative_rmse <= 0.24 && (0.90..=1.02).contains(&m.energy_ratio),
+        m.block_relative_rmse <= 0.17 && (0.90..=1.10).contains(&m.energy_ratio),
         &image,
         Some(&truth),
         format!(
-            "cornell, medium preset: block relative RMSE {:.4} (want ≤ 0.24), energy {:.4} (want 0.90–1.02)",
+            "cornell, medium preset: block relative RMSE {:.4} (want ≤ 0.17), energy {:.4} (want 0.90–1.10)",
             m.block_relative_rmse, m.energy_ratio
         ),
     );
@@ -250,13 +250,14 @@ fn irradiance_volume_output_lights_the_scene_through_bevys_light_probe() {
         let v = luminance(region.mean(test, &indirect));
         check(test, v > 0.05, &indirect, Some(&truth), format!("{}: no light from the probe ({v})", region.name));
     }
-    // Six directions per hint and no hemisphere sampling, yet close to the per-pixel composite.
-    // Measured on lavapipe: block relative RMSE 0.237, energy 0.925 (composite: 0.206, 0.954).
+    // Six directions per hint (floors and ceilings from the exact vertical irradiance) and no hemisphere
+    // sampling, yet close to the per-pixel composite. Measured on lavapipe: block relative RMSE 0.171,
+    // energy 1.07 (composite after 8 frames: 0.123, 1.06).
     let m = metrics::compare(&indirect, &truth).expect("comparable");
     eprintln!("{test}: block {:.4}, energy {:.4}", m.block_relative_rmse, m.energy_ratio);
     check(
         test,
-        m.block_relative_rmse < 0.27 && (0.87..=0.99).contains(&m.energy_ratio),
+        m.block_relative_rmse < 0.21 && (0.90..=1.10).contains(&m.energy_ratio),
         &indirect,
         Some(&truth),
         format!("IrradianceVolume output: block {:.4}, energy {:.4}", m.block_relative_rmse, m.energy_ratio),
@@ -303,13 +304,12 @@ fn the_default_volume_is_right_in_the_large_standard_scenes() {
 }
 
 /// Measured on lavapipe at the default settings: (block relative RMSE, energy, blocks > 50 % off).
-const MEASURED_SPONZA: (f64, f64, f64) = (0.280, 1.015, 0.017);
-const MEASURED_CELLAR: (f64, f64, f64) = (0.249, 0.905, 0.011);
-/// Far from the ≤ 0.30 target: 1 m cells over a 60 m field, and the non-linear irradiance lights the
-/// ground from the field above it, which holds the ground's own light (docs/radiance_hints.md).
-const MEASURED_FIELD: (f64, f64, f64) = (0.562, 1.313, 0.662);
-const MEASURED_POINT: (f64, f64, f64) = (0.090, 1.030, 0.005);
-const MEASURED_PANEL: (f64, f64, f64) = (0.283, 1.075, 0.076);
+const MEASURED_SPONZA: (f64, f64, f64) = (0.176, 1.006, 0.003);
+const MEASURED_CELLAR: (f64, f64, f64) = (0.200, 0.923, 0.004);
+/// 0.65 m cells over the 60 m field (the default's budget of 2¹⁷ hints); the issue's target is ≤ 0.30.
+const MEASURED_FIELD: (f64, f64, f64) = (0.297, 0.968, 0.042);
+const MEASURED_POINT: (f64, f64, f64) = (0.112, 1.051, 0.003);
+const MEASURED_PANEL: (f64, f64, f64) = (0.299, 1.115, 0.118);
 
 #[test]
 fn a_point_light_bounces_through_its_cube_rsm() {
@@ -465,11 +465,125 @@ fn cellar_ceiling_junctions_hold_no_outlier_pixels() {
 }
 
 #[test]
-#[ignore = "issue #13: where the dividing and right walls meet near the floor, 6 pixels (181–182, 154–157) \
-            read 3.2× the truth: the dividing wall hides the door the hints see, below their scale. A lobe \
-            contact shadow fixes them but costs 1.43× → 1.71× per frame (docs/radiance_hints.md)"]
 fn cellar_floor_junctions_hold_no_outlier_pixels() {
+    // The same below the middle of the view: where the dividing wall, the back wall and the floor meet
+    // beside the door (the corner read 3.2× the truth while the reconstruction's first sample stood one
+    // and a half cell diagonals off the wall, in the door's light), and the light patch at the back wall's
+    // foot.
     assert_no_cellar_junction_outliers("rh_cellar_floor_junctions", 120..256);
+}
+
+#[test]
+fn a_sunlit_floor_reads_only_the_light_from_above() {
+    // The field above a sunlit floor holds mostly the floor's own light, arriving from below and around
+    // the horizon; SH of order 2 gave a surface facing up a third to a half of it (17× the truth on
+    // `open_field`'s ground near the camera, Hazel's form; 2× with Eq. 7's). The exact vertical
+    // irradiance per hint reads only what comes from above: the buildings' and the wall's light.
+    let test = "rh_sunlit_floor";
+    let image = rh_converged(StandardScene::OpenField, RadianceHintsVolume::default());
+    let truth = ground_truth("open_field.exr");
+    for region in [Region::new("ground near the camera", 10, 200, 246, 250), Region::new("ground further off", 10, 180, 246, 200)] {
+        let (a, t) = (luminance(region.mean(test, &image)), luminance(region.mean(test, &truth)));
+        eprintln!("{test}: {}: {a:.4} against {t:.4} in the ground truth", region.name);
+        check(
+            test,
+            (0.6 * t..=1.6 * t).contains(&a),
+            &image,
+            Some(&truth),
+            format!("{}: {a:.4} against {t:.4} in the ground truth (want 0.6–1.6×)", region.name),
+        );
+    }
+}
+
+#[test]
+fn the_unlit_room_gets_the_light_of_every_bounce() {
+    // Most of what reaches `cellar`'s room B has bounced many times; eight extra bounces left it at 0.83
+    // of its path-traced light. The blend adds the geometric tail of the bounces not run (blend.wgsl).
+    let test = "rh_cellar_room_b";
+    let image = rh_converged(StandardScene::Cellar, RadianceHintsVolume::default());
+    let truth = ground_truth("cellar.exr");
+    let in_room_b = |x: u32, y: u32| !((140..176).contains(&x) && (75..165).contains(&y));
+    let sum = |i: &HdrImage| -> f64 {
+        let mut s = 0.0;
+        for y in 0..i.height {
+            for x in 0..i.width {
+                let p = i.get(x, y);
+                if truth.get(x, y)[3] > 0.5 && in_room_b(x, y) {
+                    s += (p[0] + p[1] + p[2]) as f64;
+                }
+            }
+        }
+        s
+    };
+    let energy = sum(&image) / sum(&truth);
+    eprintln!("{test}: room B holds {energy:.3} of its path-traced light (measured 0.90)");
+    check(test, energy >= 0.86, &image, Some(&truth), format!("room B holds {energy:.3} of its path-traced light (want ≥ 0.86)"));
+}
+
+#[test]
+fn hints_beside_a_lit_wall_hold_its_light() {
+    // A hint a few centimetres from a lit surface receives most of its light from the texels right behind
+    // it, at 1/d²: drawn uniformly from the RSM they were hit once in hundreds of updates, receivers in the
+    // wall's own voxel layer had their paths blocked by its neighbouring voxels, and the extra bounces met
+    // phantom walls there. Such hints read a tenth to a half of their light. Here: the hints 5 cm from the
+    // spot-lit face of `cellar`'s dividing wall, against the path tracer.
+    use bevy::math::{Mat4, UVec3, Vec3};
+    use bevy_diffuse_gi::reference::{ReferenceSettings, incident_radiance};
+    use bevy_diffuse_gi::sampling::{SobolStream, fibonacci_sphere};
+    let test = "rh_hints_beside_a_lit_wall";
+    let dir = common::failure_dir(test);
+    std::fs::create_dir_all(&dir).expect("a directory for the dump");
+    let path = dir.join("volume.json");
+    render(&HeadlessOptions {
+        scene: StandardScene::Cellar,
+        method: HeadlessMethod::Gi(GiMethod::RadianceHints),
+        indirect_only: true,
+        frames: 32,
+        dump_volume: Some(path.clone()),
+        ..Default::default()
+    });
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&path).expect("the dump")).expect("JSON");
+    let floats = |k: &str| -> Vec<f32> { v[k].as_array().expect(k).iter().map(|x| x.as_f64().unwrap() as f32).collect() };
+    let res = UVec3::from_array(serde_json::from_value(v["resolution"].clone()).expect("resolution"));
+    let terms = v["field_terms"].as_u64().or(v["sh_coefficients"].as_u64()).expect("field terms") as usize;
+    let world_from_local = Mat4::from_cols_slice(&floats("world_from_local"));
+    let (field, validity) = (floats("sh"), floats("albedo_validity"));
+    let scene = bevy_diffuse_gi::scenes::cellar_snapshot();
+    let settings = ReferenceSettings { seed: 3, ..Default::default() };
+    let lum = |c: Vec3| c.dot(Vec3::new(0.2126, 0.7152, 0.0722));
+    let (mut gpu, mut traced, mut hints) = (0.0f32, 0.0f32, 0);
+    for index in 0..(res.x * res.y * res.z) as usize {
+        let c = UVec3::new(index as u32 % res.x, (index as u32 / res.x) % res.y, index as u32 / (res.x * res.y));
+        let local = (c.as_vec3() + 0.5) / res.as_vec3() - 0.5;
+        let p = world_from_local.transform_point3(local);
+        // Room A's side of the dividing wall (its lit face at x = −0.1), beside the wall, not the door.
+        if !(-0.2..-0.1).contains(&p.x) || p.z < -0.6 || !(0.4..2.1).contains(&p.y) || validity[index * 4 + 3] < 0.5 {
+            continue;
+        }
+        // Band 0 of the traced field: a = ∫L dω / 4 = π × the mean radiance over the sphere, from origins
+        // jittered over the free part of the cell as the injection's receivers are.
+        let stream = SobolStream::new(5, index as u64);
+        let (mut sum, mut used) = (Vec3::ZERO, 0);
+        for k in 0..512u32 {
+            let u = stream.vertex_4d(k, 0);
+            let origin = world_from_local.transform_point3(local + (Vec3::new(u[0], u[1], u[2]) - 0.5) * 0.5 / res.as_vec3());
+            let to = origin - p;
+            if to.length() > 1e-6 && scene.occluded(p, to.normalize(), 0.0, to.length()) {
+                continue;
+            }
+            let [e, direct, indirect] = incident_radiance(&scene, origin, fibonacci_sphere(k, 512), &settings, 1, index as u64 * 512 + k as u64);
+            sum += e + direct + indirect;
+            used += 1;
+        }
+        traced += lum(sum / used.max(1) as f32) * std::f32::consts::PI;
+        let b = index * 3 * terms;
+        gpu += lum(Vec3::new(field[b], field[b + 1], field[b + 2])) * 0.886_226_9;
+        hints += 1;
+    }
+    let ratio = gpu / traced;
+    eprintln!("{test}: {hints} hints, band-0 irradiance GPU / path traced {ratio:.3}");
+    assert!(hints >= 20, "only {hints} hints beside the wall");
+    assert!((0.8..=1.25).contains(&ratio), "{hints} hints 5 cm from the lit wall hold {ratio:.3} of their path-traced light (want 0.8–1.25)");
 }
 
 /// Places `cornell`'s volume at 1.5× the box it was fitted to (so that moving it a cell keeps the box
