@@ -18,10 +18,12 @@ use crate::sh::ShOrder;
 /// Invalid values (zero or huge sizes, NaN, absurd sample counts) are clamped to the documented range with
 /// one warning per field; see [`RadianceHintsVolume::sanitized`].
 ///
-/// Memory per volume ([`memory_bytes`](Self::memory_bytes)): `hints × (4 × 3 × SH coefficients × 4 B + 48 B)`
-/// (two bounce increments, a running sum, the displayed result; distances, albedo and the packed
-/// irradiance of the reconstruction) plus 9 bits per occupancy voxel (4× the hint resolution: the
-/// occupancy bit and the 8-bit visibility mask): 16³ with SH order 2 is 1.2 MiB, 24³ 4.1 MiB.
+/// Memory per volume ([`memory_bytes`](Self::memory_bytes)):
+/// `hints × (4 × 3 × (SH coefficients + 2) × 4 B + 64 B)` (two bounce increments, a running sum, the
+/// displayed result, each with the two vertical irradiance terms; distances, albedo and the 32-byte packed
+/// irradiance of the reconstruction) plus 9 bits per occupancy voxel (4× the hint resolution: the occupancy
+/// bit and the 8-bit visibility mask): 16³ with SH order 2 is 1.7 MiB, 24³ 5.6 MiB, the default over a
+/// 60 m field (93 × 14 × 93 hints) 45 MiB.
 #[derive(Component, Reflect, Clone, Debug, PartialEq)]
 #[reflect(Component, Default, Clone)]
 #[require(Transform, Visibility)]
@@ -126,8 +128,9 @@ pub struct RadianceHintsVolume {
     /// Default `None`. Cost: O(hints × samples × steps) depth reads, and the volume is recomputed
     /// whenever the camera moves.
     pub depth_occlusion: Option<DepthOcclusion>,
-    /// Hint samples per shaded pixel, `N_RH` of Eq. 6: the first on the normal, the rest on a cone 80° from
-    /// it, rotated per pixel (§5).
+    /// Hint samples per shaded pixel, `N_RH` of Eq. 6: the first at the centre of the hemisphere (on the
+    /// normal, half of [`reconstruction_reach`](Self::reconstruction_reach)'s cell diagonals off the surface),
+    /// the rest on a cone 80° from the normal around it, rotated per pixel (§5).
     ///
     /// Default 4. Valid range 1–16. Cost: the reconstruction is O(pixels × samples).
     pub reconstruction_samples: u32,
@@ -138,7 +141,8 @@ pub struct RadianceHintsVolume {
     /// than the light up to one and a half cells in front of it (a point nearer a bright wall, or one that
     /// sees through a door the surface does not); the exact vertical irradiance of floors and ceilings
     /// needs them. Measured at the defaults (block relative RMSE, reach 1 → 0.5 → 0.25): `cornell`
-    /// 0.205 → 0.123 → 0.105, `cellar` 0.277 → 0.218 → 0.231 (`docs/radiance_hints.md`). Free.
+    /// 0.157 → 0.119 → 0.116, `cellar` 0.214 → 0.200 → 0.191, `open_field` (0.65 m cells) 0.343 → 0.297
+    /// → 0.471 (`docs/radiance_hints.md`, § reconstruction). Free.
     pub reconstruction_reach: f32,
     /// Range of the near-field occlusion, in cell diagonals (0 turns it off): the hints lie half a cell
     /// and more off a surface, so the field cannot know that the floor beside a box's base sees less of
@@ -147,8 +151,8 @@ pub struct RadianceHintsVolume {
     /// multi-bounce correction of Jimenez et al. 2016 (occluders reflect part of the light they block).
     ///
     /// Default 0 (off) in every preset: measured against the path-traced ground truth it raises the error
-    /// more than it removes (0.5 diagonals: `cornell` 0.147 → 0.245 block relative RMSE with 7 % less
-    /// energy, `cellar` 0.249 → 0.257): the occupancy voxels, a quarter of a cell, are too coarse for
+    /// more than it removes (0.5 diagonals: `cornell` 0.119 → 0.212 block relative RMSE with 5 % less
+    /// energy, `cellar` 0.200 → 0.227): the occupancy voxels, a quarter of a cell, are too coarse for
     /// contact occlusion and darken whole surfaces near others. Valid range 0–2. Needs
     /// [`voxel_visibility`](Self::voxel_visibility). Cost: four short voxel marches per pixel.
     pub near_field_occlusion: f32,
@@ -247,9 +251,10 @@ pub enum SecondaryTransport {
 /// face), the lobe is so strong that `a + b·n` goes negative on the dim side and is clamped to zero: the
 /// light that side does receive is lost, and a dark or tinted smudge appears (the small box's top and the
 /// floor by the red wall in `cornell`). Measured with the default settings at 256² (block relative RMSE,
-/// linear → non-linear): `cornell` 0.182 → 0.147, the point-lit `dynamic` room 0.113 → 0.091,
-/// `emissive_panel` 0.354 → 0.283; `cellar` 0.243 → 0.248 and `sponza_like` 0.276 → 0.279
-/// (`docs/radiance_hints.md`, § reconstruction).
+/// linear → non-linear, half resolution): `cornell` 0.126 → 0.119, `cellar` 0.249 → 0.200,
+/// `emissive_panel` 0.352 → 0.299; `sponza_like`, `open_field` and the point-lit `dynamic` room within
+/// 0.01 (`docs/radiance_hints.md`, § reconstruction). Floors and ceilings also read each hint's exact
+/// vertical irradiance, in both forms.
 #[derive(Reflect, Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 #[reflect(Clone, Default)]
 pub enum IrradianceReconstruction {
@@ -455,7 +460,7 @@ impl GiSettings for RadianceHintsVolume {
         c.uint(&mut s.extra_bounces, 0, 16, "extra_bounces");
         c.uint(&mut s.secondary_samples, 1, 256, "secondary_samples");
         c.uint(&mut s.reconstruction_samples, 1, 16, "reconstruction_samples");
-        c.float(&mut s.reconstruction_reach, 0.1, 2.0, 1.0, "reconstruction_reach");
+        c.float(&mut s.reconstruction_reach, 0.1, 2.0, 0.5, "reconstruction_reach");
         c.uint(&mut s.refinement_updates, 0, 256, "refinement_updates");
         c.float(&mut s.rsm_coverage, 0.01, 1.0, 1.0, "rsm_coverage");
         c.float(&mut s.jitter, 0.0, 1.0, 1.0, "jitter");
