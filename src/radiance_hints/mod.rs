@@ -13,7 +13,7 @@
 //! ```
 //!
 //! The default grid adapts to the box ([`GridSizing`]): 4096 hints in cubic cells for a small room, cells
-//! of at most 0.35 m (up to 32 768 hints) in a large one. Worlds larger than one volume use several
+//! of at most 0.35 m (up to 131 072 hints, then larger cells) in a large one. Worlds larger than one volume use several
 //! (they average where they overlap, and a volume inside a coarser one refines it without a seam) or a
 //! [`RadianceHintsCascade`] on the camera. Emissive `StandardMaterial`s light the scene through the hints
 //! like the GI lights do ([`crate::emitters`]).
@@ -28,25 +28,37 @@
 //!    `π L_e A`, which Eq. 3–5 treat exactly as RSM texels), each received at a point `y_k` jittered inside the hint's cell,
 //!    and projects `L̃(y_k) = ρΦ_T (M/N) max(0, n_k·−ω_k) / (π d²)` along `ω_k` onto SH of order 2 or 3
 //!    (Eq. 5). It records the nearest and farthest sample, normalised by `r_max`, for Eq. 9 and 11.
+//!    Beside the SH coefficients each hint accumulates the exact clamped-cosine irradiance of a surface
+//!    facing up and of one facing down (two more RGB terms, [`VERTICAL_TERMS`]). Samples are drawn as a
+//!    one-sample MIS mixture of the whole RSM and two windows around the hint's own projection (one cell
+//!    diagonal, and three times the hint's height over the surface behind it), each weighted by the
+//!    mixture's density (balance heuristic): unbiased, and the 1/d² peak of a surface next to the hint is
+//!    sampled every update instead of once in hundreds.
 //! 3. **Extra bounces** (§6–7; `bounce.wgsl`): bounce `k` gathers from bounce `k − 1`'s increment and
 //!    adds its own increment to the running sum. The default [`SecondaryTransport::VoxelMarch`] marches
 //!    `N_b` stratified directions through the volume's voxelised scene to the first surface and reflects
 //!    the previous bounce's light there (Eq. 10 at the true reflector, coloured by the §6 albedo volume);
+//!    (read half a cell off the face the ray hit, on the side it came from);
 //!    [`SecondaryTransport::Paper`] is Eq. 8–11 as a weighted Monte Carlo estimator over points in a ball
 //!    of radius `r_max`, with Eq. 11's distance-based visibility and Eq. 9's confidence. A decide pass
 //!    stops the remaining bounces on the GPU (indirect dispatch of zero workgroups) once one adds less
-//!    than [`bounce_threshold`](RadianceHintsVolume::bounce_threshold) of the light so far.
+//!    than [`bounce_threshold`](RadianceHintsVolume::bounce_threshold) of the light so far; the blend adds
+//!    the bounces not run as a geometric tail, the last increment times `q/(1 − q)` with `q` the ratio of
+//!    the last two increments' light (at most 0.9).
 //! 4. **Temporal smoothing** (§9.1; `blend.wgsl`): after a change the displayed field moves towards the
 //!    new one by [`temporal_blend`](RadianceHintsVolume::temporal_blend); while nothing changes, the next
 //!    [`refinement_updates`](RadianceHintsVolume::refinement_updates) updates (fresh RSM samples and
 //!    jitter each) are averaged with weights `1/(k+1)`, then the volume stops updating.
 //! 5. **Reconstruction** (§5, Eq. 6–7; `reconstruct.wgsl`): per pixel, `N_RH` positions on a hemisphere
-//!    of one cell diagonal around the surface, shifted half a diagonal along the normal (the first on the
-//!    normal, the rest on a cone 80° from it, rotated per pixel), each interpolated trilinearly and
-//!    integrated against the clamped cosine. Three things prepared once per update keep this cheap: a
+//!    of radius `reach · r` (`r` the cell diagonal, `reach` =
+//!    [`reconstruction_reach`](RadianceHintsVolume::reconstruction_reach), 0.5 by default; §5 uses 1)
+//!    centred `reach · r/2` along the normal (the first at the centre, the rest on a cone 80° from the
+//!    normal, rotated per pixel), each interpolated trilinearly and integrated against the clamped cosine;
+//!    a normal that is not horizontal also reads the vertical irradiance terms (n_y² of the difference
+//!    between the exact value and the SH's for ±y). Three things prepared once per update keep this cheap: a
 //!    **visibility mask** per occupancy voxel (`visibility.wgsl`: which of the eight hints around it are
 //!    valid and not behind a surface, redone only where the voxels change) replaces eight voxel marches
-//!    per lookup; each hint's field is stored in a **packed irradiance form** of 16 bytes
+//!    per lookup; each hint's field is stored in a **packed irradiance form** of 32 bytes
 //!    (`rh_packed.wgsl`, written by the blend) instead of being read as 12 floats; and by default the
 //!    pass runs at **half resolution** ([`DiffuseGi::half_resolution`](crate::camera::DiffuseGi)).
 //!    Eq. 7's linear cosine convolution rings negative beside strong lights and loses the weaker light
@@ -62,8 +74,8 @@
 //! # Where this departs from the paper, and why
 //! Each change was measured against the path-traced ground truth (`docs/radiance_hints.md` has the tables):
 //! * **Non-linear irradiance** (Hazel, Geomerics 2015) instead of Eq. 7's linear convolution for SH order
-//!   2: `cornell` 0.182 → 0.147 block relative RMSE, the point-lit `dynamic` room 0.113 → 0.091, the
-//!   emissive panel 0.354 → 0.283; `cellar` and `sponza_like` within 0.005.
+//!   2: `cornell` 0.126 → 0.119 block relative RMSE, `cellar` 0.249 → 0.200, the emissive panel
+//!   0.352 → 0.299; the other scenes within 0.01.
 //! * Spot and point lights sample their **whole RSM**: the paper's disk around the hint's projection
 //!   misses the lit floor for hints near a ceiling light. `c_RSM` applies to directional lights.
 //! * **Voxel visibility** for the first bounce: the paper leaves it unoccluded (§7), and in a two-room
@@ -80,11 +92,24 @@
 //! * **Refinement**: a still scene keeps averaging updates instead of stopping once the blend settles,
 //!   which removes the sampling noise of the injection without more samples per frame.
 //! * **Half resolution** by default, with a joint bilateral filter at that resolution before the
-//!   upsampling: the error against the truth is that of full resolution within 0.01 (`cornell` 0.147
-//!   both; `docs/radiance_hints.md`, § reconstruction) for about a quarter of the per-pixel work.
+//!   upsampling: the error against the truth is that of full resolution within 0.01
+//!   (`docs/radiance_hints.md`, § reconstruction) for about a quarter of the per-pixel work.
+//! * **The field near surfaces** (`docs/radiance_hints.md`, § the field near surfaces, found by checking
+//!   dumped volumes against the path tracer at every hint with the `rh_volume_check` example):
+//!   - the **exact vertical irradiance** beside SH order 2: above a sunlit ground the field holds mostly
+//!     the ground's own light from below, and SH order 2 gave a surface facing up a third to a half of it
+//!     (17× the truth on `open_field`'s ground near the camera);
+//!   - **near-window sampling** of the RSMs (above): a hint 5 cm from `cellar`'s lit wall read a tenth of
+//!     its traced irradiance, hints beside lit walls 0.71 of it (0.94 now);
+//!   - injection **receivers** in the voxel of the surface they belong to, and extra-bounce lookups half a
+//!     cell off the hit face instead of half a diagonal back along the ray;
+//!   - the **bounce tail** (above): `cellar`'s unlit room 0.83 → 0.90 of its light;
+//!   - a **closer reconstruction** (reach 0.5, first sample at the centre): the paper's hemisphere one cell
+//!     diagonal out reads the light up to one and a half cells in front of the surface, e.g. a door's
+//!     light at the corner beside it (3.2× the truth in `cellar`).
 //!
 //! # Data layout
-//! Per volume, storage buffers of `hints × 3 × SH coefficients` floats (cell-major, coefficient-major RGB):
+//! Per volume, storage buffers of `hints × 3 × (SH coefficients + 2 vertical terms)` floats (cell-major, coefficient-major RGB):
 //! two bounce increments (ping-pong), the running sum, the displayed result; plus distances and albedo
 //! with validity (a `vec4` per hint) and the occupancy bits. Storage buffers rather than 3D textures: every
 //! pass reads and writes the same layout, 32-bit floats keep HDR range without per-scene scaling, and no
@@ -111,34 +136,40 @@
 //! mesh re-voxelises only the cells its old and new bounds touch ([`voxelize::voxelize_update`]).
 //!
 //! * **Game scale** (`docs/radiance_hints.md`, § game scale and § reconstruction; lavapipe, 256², default
-//!   settings at half resolution, block relative RMSE / energy): `cornell` 0.147 / 0.98, `cellar`
-//!   0.249 / 0.90, `sponza_like` 0.280 / 1.01, the point-lit `dynamic` 0.090 / 1.03, `emissive_panel`
-//!   0.283 / 1.07, `open_field` 0.56 / 1.31.
+//!   settings at half resolution, block relative RMSE / energy): `cornell` 0.119 / 1.06, `cellar`
+//!   0.200 / 0.92, `sponza_like` 0.176 / 1.01, `open_field` 0.297 / 0.97 (60 m, 0.65 m cells), the
+//!   point-lit `dynamic` 0.112 / 1.05, `emissive_panel` 0.299 / 1.12.
 //! * **Per pixel** (`docs/radiance_hints.md`, § reconstruction): a still `cornell` frame at 512² on
-//!   lavapipe costs 1.46× the frame without GI with the default half-resolution reconstruction
-//!   (`rh_reconstruct` 22 ms, `filter` 4 ms, composite 7 ms) and 2.44× at full resolution (80 ms);
-//!   before the visibility masks and packed irradiance it was 4.8–5.7×. The reconstruction reads one mask
-//!   word and eight 16-byte hints per hemisphere sample.
-//! * **Memory**: see [`RadianceHintsVolume`] (16³ hints: 1.2 MiB).
+//!   lavapipe costs 1.53× the frame without GI with the default half-resolution reconstruction
+//!   (`rh_reconstruct` 31 ms, `filter` 4 ms, composite 8 ms; the target is 1.5×, and it was 1.46×
+//!   before the vertical terms); before the visibility masks and packed irradiance it was 4.8–5.7×. The reconstruction reads one mask word and eight hints per hemisphere
+//!   sample: 16 bytes each for walls, 32 for other normals (the vertical terms, 22 → 29 ms).
+//! * **Memory**: see [`RadianceHintsVolume`] (16³ hints: 1.7 MiB; the 121 000 hints of a 60 m field
+//!   45 MiB).
 //!
 //! # Known issues
 //! * Cells must be smaller than the rooms they light and under about twice the thickness of the walls
-//!   that must stop light. The adaptive default caps them at 0.35 m, but a volume over more than about
-//!   30 m runs out of hints: `open_field` (60 m, 1 m cells) is 0.56 off, its 30 cm free-standing wall
-//!   within one cell. Give such worlds several volumes or a cascade whose finest level covers what the
-//!   camera looks at (on `open_field` the default cascade is not yet better: 0.95).
-//! * The non-linear irradiance assumes light from every side besides the dominant direction: over a
-//!   sunlit open ground, where the field holds only the ground's own upward light, it gives a surface
-//!   facing up a third of the field's mean irradiance (the linear form gives none): `open_field`
-//!   0.48 → 0.56. Closed rooms gain from it ([`IrradianceReconstruction::Linear`] is the other choice).
+//!   that must stop light. The adaptive default caps them at 0.35 m up to about 30 × 6 × 30 m; beyond
+//!   that the cells grow (0.65 m over 60 m, where `open_field`'s 30 cm free-standing wall has both faces
+//!   within one cell). Give such worlds
+//!   several volumes or a cascade whose finest level covers what the camera looks at (on `open_field` the
+//!   default cascade is not better, § game scale). A 60 m default volume takes about 45 MiB and its full
+//!   update is about 30× that of a small room's.
+//! * [`HIGH`](RadianceHintsVolume::HIGH) is less accurate than the default in `cellar` (0.241 against
+//!   0.200) and on `open_field` (0.506 against 0.297), where its grid meets the occupancy cap of 256
+//!   voxels per axis (two voxels per cell instead of four); the cause was not isolated.
 //! * 20 cm door jambs (thinner than a cell) in `cellar` read too little light.
 //! * Near-field occlusion below the cell size (boxes on floors) is not modelled by default: the voxel
 //!   rays of [`near_field_occlusion`](RadianceHintsVolume::near_field_occlusion) raised the error where
-//!   measured on five of six scenes (`cornell` 0.147 → 0.245), the voxels being too coarse for contact
-//!   shadows. So the concave corner where `cellar`'s dividing and right walls meet the floor reads about
-//!   3× the truth over a few pixels.
+//!   measured on five of six scenes, the voxels being too coarse for contact shadows. So concave corners
+//!   (`cellar`'s dividing and right walls at the floor) read up to 2.6× the truth over a few pixels.
 //! * Emitters next to strongly lit faces ring in SH order 2: a face at right angles to a bright panel
-//!   gets about a quarter of the light a face turned to it does.
+//!   gets about a quarter of the light a face turned to it does; `emissive_panel` carries 12 % too much
+//!   light (7 % before the field changes of issue #13; which of them adds it was not isolated).
+//! * The still frame at 512² is 1.53× the frame without GI on lavapipe, over the 1.5× target: the
+//!   vertical terms added about 7 ms to the reconstruction.
+//! * The point-lit `dynamic` room went from 0.090 to 0.112 with the changes for the field near surfaces
+//!   (energy 1.03 → 1.05); which of them costs it was not isolated.
 //! * A pixel within a voxel of a perpendicular surface (a wall meeting the ceiling) reads the field at one
 //!   point instead of its hemisphere: junctions show a faint darker crease rather than light from the
 //!   next room.
