@@ -142,7 +142,8 @@ pub struct RadianceHintsVolume {
     /// sees through a door the surface does not); the exact vertical irradiance of floors and ceilings
     /// needs them. Measured at the defaults (block relative RMSE, reach 1 → 0.5 → 0.25): `cornell`
     /// 0.157 → 0.119 → 0.116, `cellar` 0.214 → 0.200 → 0.191, `open_field` (0.65 m cells) 0.343 → 0.297
-    /// → 0.471 (`docs/radiance_hints.md`, § reconstruction). Free.
+    /// → 0.471 (`docs/radiance_hints.md`, § reconstruction). With [`HIGH`](Self::HIGH)'s smaller cells
+    /// `cellar` prefers reach 1 (0.198 against 0.241): the best reach is not yet scale-free. Free.
     pub reconstruction_reach: f32,
     /// Range of the near-field occlusion, in cell diagonals (0 turns it off): the hints lie half a cell
     /// and more off a surface, so the field cannot know that the floor beside a box's base sees less of
