@@ -13,13 +13,12 @@
 // displayed field, which converges to every bounce by itself: they add no tail.
 
 #import bevy_diffuse_gi::rh_types::{RhVolume, SH_FLOATS, FIELD_TERMS, FIELD_UP, FIELD_DOWN}
-#import bevy_diffuse_gi::rh_packed::pack_field
+#import bevy_diffuse_gi::rh_packed::{Packed, pack_field}
 
 @group(0) @binding(0) var<uniform> volume: RhVolume;
 @group(0) @binding(1) var<storage, read> sum: array<f32>;
 @group(0) @binding(2) var<storage, read_write> result: array<f32>;
-// Two words per hint (`rh_packed::Packed`).
-@group(0) @binding(3) var<storage, read_write> packed: array<vec4<u32>>;
+@group(0) @binding(3) var<storage, read_write> packed: array<Packed>;
 // The bounce increments: bounce k wrote delta_b when k is odd, delta_a when even.
 @group(0) @binding(4) var<storage, read> delta_a: array<f32>;
 @group(0) @binding(5) var<storage, read> delta_b: array<f32>;
@@ -69,7 +68,5 @@ fn blend(@builtin(global_invocation_id) gid: vec3<u32>) {
             c[i][k] = v;
         }
     }
-    let p = pack_field(c[0], c[1], c[2], c[3], c[FIELD_UP], c[FIELD_DOWN]);
-    packed[2u * index] = p.sh;
-    packed[2u * index + 1u] = p.vertical;
+    packed[index] = pack_field(c[0], c[1], c[2], c[3], c[FIELD_UP], c[FIELD_DOWN]);
 }

@@ -33,8 +33,8 @@
 @group(0) @binding(2) var gbuffer: texture_2d<u32>;
 // The hints each occupancy voxel may use (visibility.wgsl): 8 bits per voxel, 4 voxels per word.
 @group(2) @binding(1) var<storage, read> visibility: array<u32>;
-// Each hint's field in the compact irradiance form (rh_packed.wgsl, two words per hint), for SH order 2.
-@group(2) @binding(2) var<storage, read> packed: array<vec4<u32>>;
+// Each hint's field in the compact irradiance form (rh_packed.wgsl), for SH order 2.
+@group(2) @binding(2) var<storage, read> packed: array<Packed>;
 
 // 1 at full resolution, 2 at half resolution.
 const GI_SCALE: i32 = #{GI_SCALE};
@@ -107,9 +107,9 @@ fn sample_irradiance(t: Trilinear, n: vec3<f32>) -> vec3<f32> {
         if t.weights[k] > 0.0 {
             let c = t.cells[k];
             if vertical {
-                add_packed_field(&field, Packed(packed[2u * c], packed[2u * c + 1u]), t.weights[k]);
+                add_packed_field(&field, packed[c], t.weights[k]);
             } else {
-                add_packed(&field, packed[2u * c], t.weights[k]);
+                add_packed(&field, packed[c].sh, t.weights[k]);
             }
         }
     }

@@ -7,11 +7,11 @@
 // (|d_c| ≤ 2 for any non-negative radiance). a is stored as three 16-bit logarithms (2⁻³²…2³², 0.07 %
 // steps: the HDR range of any scene without a per-volume scale), d as nine 8-bit signed fractions of 2
 // (steps of 0.016, under 1 % of the irradiance of a hint). The second word holds the exact irradiance
-// facing up and facing down (`rh_types::FIELD_TERMS`), six more 16-bit logarithms: a floor or ceiling
-// reads only the three of its side, and never the first word.
+// facing up and facing down (`rh_types::FIELD_TERMS`), six more 16-bit logarithms; only normals that are
+// not horizontal read it (walls read the first word alone).
 #define_import_path bevy_diffuse_gi::rh_packed
 
-#import bevy_diffuse_gi::rh_types::with_vertical
+#import bevy_diffuse_gi::rh_types::{with_vertical, vertical_of}
 
 const PI: f32 = 3.141592653589793;
 // π Y₀₀ and (2π/3) Y₁: the band-0 and band-1 weights of the irradiance.
@@ -99,11 +99,6 @@ fn add_packed(f: ptr<function, PackedField>, q: vec4<u32>, w: f32) {
 // Linear: a + b·n, clamped at zero.
 fn sh_linear(f: PackedField, n: vec3<f32>) -> vec3<f32> {
     return max(f.a + vec3(dot(f.br, n), dot(f.bg, n), dot(f.bb, n)), vec3(0.0));
-}
-
-// The straight up or down normal on n's side.
-fn vertical_of(n: vec3<f32>) -> vec3<f32> {
-    return vec3(0.0, select(-1.0, 1.0, n.y >= 0.0), 0.0);
 }
 
 // The linear form with the exact vertical irradiances (`rh_types::with_vertical`).

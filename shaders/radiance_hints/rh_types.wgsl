@@ -132,6 +132,11 @@ fn sh_only_irradiance(sh: Sh, n: vec3<f32>) -> vec3<f32> {
     return e;
 }
 
+// The straight up or down normal on n's side: where `with_vertical` reads the exact irradiance.
+fn vertical_of(n: vec3<f32>) -> vec3<f32> {
+    return vec3(0.0, select(-1.0, 1.0, n.y >= 0.0), 0.0);
+}
+
 // `e`, the irradiance some reconstruction of the SH part gives at n, with its vertical part replaced by
 // the exact one: e + n_y² (E_exact(±Y) − e_±Y), where e_±Y is that reconstruction facing straight up or
 // down. Floors and ceilings get the exact value, walls keep the SH one, and slopes blend.
@@ -143,8 +148,7 @@ fn with_vertical(e: vec3<f32>, e_vertical: vec3<f32>, up: vec3<f32>, down: vec3<
 // Irradiance ∫ L(ω) max(0, n·ω) dω on a surface with normal n: Eq. 7 (clamped at zero against ringing)
 // with the exact vertical irradiances (`with_vertical`).
 fn sh_irradiance(sh: Sh, n: vec3<f32>) -> vec3<f32> {
-    let vertical = vec3(0.0, select(-1.0, 1.0, n.y >= 0.0), 0.0);
-    let e_vertical = max(sh_only_irradiance(sh, vertical), vec3(0.0));
+    let e_vertical = max(sh_only_irradiance(sh, vertical_of(n)), vec3(0.0));
     return with_vertical(max(sh_only_irradiance(sh, n), vec3(0.0)), e_vertical, sh.c[FIELD_UP], sh.c[FIELD_DOWN], n);
 }
 
