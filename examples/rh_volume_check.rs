@@ -35,7 +35,7 @@ use bevy_diffuse_gi::reference::{CameraProjection, ReferenceCamera, ReferenceSet
 use bevy_diffuse_gi::sampling::{SobolStream, fibonacci_sphere, orthonormal_basis};
 use bevy_diffuse_gi::scene::SceneSnapshot;
 use bevy_diffuse_gi::scenes;
-use bevy_diffuse_gi::sh::{ShOrder, ShRgb};
+use bevy_diffuse_gi::sh::{self, ShOrder, ShRgb};
 use rayon::prelude::*;
 
 /// The command line.
@@ -92,6 +92,9 @@ const BASES: [&str; 9] = [
 ];
 const AXES: [Vec3; 6] = [Vec3::X, Vec3::NEG_X, Vec3::Y, Vec3::NEG_Y, Vec3::Z, Vec3::NEG_Z];
 const PI: f32 = std::f32::consts::PI;
+/// π Y₀₀ and (2π/3) Y₁: the band-0 and band-1 weights of the irradiance (Eq. 7; `rh_packed.wgsl`).
+const BAND0: f32 = sh::COSINE_LOBE[0] * sh::Y00;
+const BAND1: f32 = sh::COSINE_LOBE[1] * sh::Y1;
 
 fn lum(v: Vec3) -> f32 {
     v.dot(Vec3::new(0.2126, 0.7152, 0.0722))
@@ -138,8 +141,6 @@ fn hazel(a: f32, b: Vec3, n: Vec3) -> f32 {
 
 /// Irradiance at `n` of an order-2 field (the first four coefficients): Eq. 7 clamped, and Hazel's.
 fn sh2_forms(sh: &ShRgb, n: Vec3) -> (Vec3, Vec3) {
-    const BAND0: f32 = 0.886_226_9;
-    const BAND1: f32 = 1.023_326_7;
     let c = &sh.coefficients;
     let a = (c[0] * BAND0).max(Vec3::ZERO);
     let b = [0, 1, 2].map(|ch| Vec3::new(c[3][ch], c[1][ch], c[2][ch]) * BAND1);
@@ -299,16 +300,16 @@ fn camera(scene: &str) -> ReferenceCamera {
     use scenes::*;
     let (position, target, fov, ev100) = match scene {
         "cornell" => (cornell::CAMERA_POSITION, Vec3::ZERO, cornell::FOV_Y_DEGREES, CORNELL_EV100),
-        "cellar" => (cellar::CAMERA_POSITION, cellar::CAMERA_TARGET, 70.0, CELLAR_EV100),
-        "sponza_like" => (sponza_like::CAMERA_POSITION, sponza_like::CAMERA_TARGET, 70.0, SPONZA_EV100),
-        _ => (open_field::CAMERA_POSITION, open_field::CAMERA_TARGET, 60.0, OPEN_FIELD_EV100),
+        "cellar" => (cellar::CAMERA_POSITION, cellar::CAMERA_TARGET, cellar::FOV_Y_DEGREES, CELLAR_EV100),
+        "sponza_like" => (sponza_like::CAMERA_POSITION, sponza_like::CAMERA_TARGET, sponza_like::FOV_Y_DEGREES, SPONZA_EV100),
+        _ => (open_field::CAMERA_POSITION, open_field::CAMERA_TARGET, open_field::FOV_Y_DEGREES, OPEN_FIELD_EV100),
     };
     let rotation: Quat = Transform::from_translation(position).looking_at(target, Vec3::Y).rotation;
     ReferenceCamera {
         position,
         rotation,
         projection: CameraProjection::Perspective { fov_y: fov.to_radians() },
-        exposure: 2f32.powf(-ev100) / 1.2,
+        exposure: bevy::camera::Exposure { ev100 }.exposure(),
     }
 }
 
@@ -431,7 +432,7 @@ fn gpu_axes(h: &Hint) -> [Vec3; 6] {
 }
 
 fn band0(sh: &ShRgb) -> f32 {
-    lum(sh.coefficients[0]) * 0.886_226_9
+    lum(sh.coefficients[0]) * BAND0
 }
 
 fn report_field(cli: &Cli, volume: &Volume) {

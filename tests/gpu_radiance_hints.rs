@@ -530,6 +530,7 @@ fn hints_beside_a_lit_wall_hold_its_light() {
     use bevy::math::{Mat4, UVec3, Vec3};
     use bevy_diffuse_gi::reference::{ReferenceSettings, incident_radiance};
     use bevy_diffuse_gi::sampling::{SobolStream, fibonacci_sphere};
+    use bevy_diffuse_gi::sh;
     let test = "rh_hints_beside_a_lit_wall";
     let dir = common::failure_dir(test);
     std::fs::create_dir_all(&dir).expect("a directory for the dump");
@@ -545,12 +546,11 @@ fn hints_beside_a_lit_wall_hold_its_light() {
     let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&path).expect("the dump")).expect("JSON");
     let floats = |k: &str| -> Vec<f32> { v[k].as_array().expect(k).iter().map(|x| x.as_f64().unwrap() as f32).collect() };
     let res = UVec3::from_array(serde_json::from_value(v["resolution"].clone()).expect("resolution"));
-    let terms = v["field_terms"].as_u64().or(v["sh_coefficients"].as_u64()).expect("field terms") as usize;
+    let terms = v["field_terms"].as_u64().expect("field terms") as usize;
     let world_from_local = Mat4::from_cols_slice(&floats("world_from_local"));
     let (field, validity) = (floats("sh"), floats("albedo_validity"));
     let scene = bevy_diffuse_gi::scenes::cellar_snapshot();
     let settings = ReferenceSettings { seed: 3, ..Default::default() };
-    let lum = |c: Vec3| c.dot(Vec3::new(0.2126, 0.7152, 0.0722));
     let (mut gpu, mut traced, mut hints) = (0.0f32, 0.0f32, 0);
     for index in 0..(res.x * res.y * res.z) as usize {
         let c = UVec3::new(index as u32 % res.x, (index as u32 / res.x) % res.y, index as u32 / (res.x * res.y));
@@ -575,9 +575,10 @@ fn hints_beside_a_lit_wall_hold_its_light() {
             sum += e + direct + indirect;
             used += 1;
         }
-        traced += lum(sum / used.max(1) as f32) * std::f32::consts::PI;
+        traced += luminance((sum / used.max(1) as f32).to_array()) * std::f32::consts::PI;
         let b = index * 3 * terms;
-        gpu += lum(Vec3::new(field[b], field[b + 1], field[b + 2])) * 0.886_226_9;
+        // The irradiance's band 0, π Y₀₀ L₀₀ (`rh_packed.wgsl`).
+        gpu += luminance([field[b], field[b + 1], field[b + 2]]) * sh::COSINE_LOBE[0] * sh::Y00;
         hints += 1;
     }
     let ratio = gpu / traced;

@@ -29,6 +29,8 @@ pub const LIGHT_POSITION: Vec3 = Vec3::new(-3.0, 1.6, 0.8);
 pub const LIGHT_TARGET: Vec3 = Vec3::new(-0.1, 0.8, 0.7);
 pub const CAMERA_POSITION: Vec3 = Vec3::new(3.6, 1.5, 1.6);
 pub const CAMERA_TARGET: Vec3 = Vec3::new(0.0, 0.9, -0.4);
+/// Vertical field of view of the camera, in degrees.
+pub const FOV_Y_DEGREES: f32 = 70.0;
 
 const T: f32 = 0.2;
 
@@ -79,7 +81,7 @@ pub fn spawn_cellar(
     commands.spawn((
         Camera3d::default(),
         Projection::Perspective(PerspectiveProjection {
-            fov: 70f32.to_radians(),
+            fov: FOV_Y_DEGREES.to_radians(),
             ..default()
         }),
         Transform::from_translation(CAMERA_POSITION).looking_at(CAMERA_TARGET, Vec3::Y),

@@ -29,6 +29,8 @@ pub const SUN_LUX: f32 = 20_000.0;
 pub const SUN_DIRECTION: Vec3 = Vec3::new(0.5, -0.8, 0.35);
 pub const CAMERA_POSITION: Vec3 = Vec3::new(-22.0, 1.7, 21.0);
 pub const CAMERA_TARGET: Vec3 = Vec3::new(2.0, 2.5, -4.0);
+/// Vertical field of view of the camera, in degrees.
+pub const FOV_Y_DEGREES: f32 = 60.0;
 
 /// The boxes of the scene: (min, max corner, index into [`PALETTE`]).
 pub fn open_field_boxes() -> Vec<(Vec3, Vec3, usize)> {
@@ -64,7 +66,7 @@ pub fn spawn_open_field(
         }
         .build(),
     );
-    super::spawn_scene_camera(commands, CAMERA_POSITION, CAMERA_TARGET, 60.0, ev100, "field camera");
+    super::spawn_scene_camera(commands, CAMERA_POSITION, CAMERA_TARGET, FOV_Y_DEGREES, ev100, "field camera");
 }
 
 /// The scene as a [`SceneSnapshot`](crate::scene::SceneSnapshot), built on the CPU from the same boxes,

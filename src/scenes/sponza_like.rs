@@ -27,6 +27,8 @@ pub const SUN_LUX: f32 = 20_000.0;
 pub const SUN_DIRECTION: Vec3 = Vec3::new(0.35, -1.0, 0.2);
 pub const CAMERA_POSITION: Vec3 = Vec3::new(-5.6, 1.8, -0.6);
 pub const CAMERA_TARGET: Vec3 = Vec3::new(3.0, 1.0, 0.9);
+/// Vertical field of view of the camera, in degrees.
+pub const FOV_Y_DEGREES: f32 = 70.0;
 
 const T: f32 = 0.3;
 
@@ -79,7 +81,7 @@ pub fn spawn_sponza_like(
         }
         .build(),
     );
-    super::spawn_scene_camera(commands, CAMERA_POSITION, CAMERA_TARGET, 70.0, ev100, "atrium camera");
+    super::spawn_scene_camera(commands, CAMERA_POSITION, CAMERA_TARGET, FOV_Y_DEGREES, ev100, "atrium camera");
 }
 
 /// The scene as a [`SceneSnapshot`](crate::scene::SceneSnapshot), built on the CPU from the same boxes,
