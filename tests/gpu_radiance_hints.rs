@@ -600,10 +600,11 @@ fn place_volume(home: &mut Option<bevy::prelude::Transform>, volume: &RadianceHi
     }
 }
 
-/// `cornell` with its volume 1.5× the box (see [`place_volume`]). With a
-/// positive `step` the volume jumps `step` cells along x and back every frame; with a negative one it
-/// stays and the light's intensity changes by 0.01 % every frame instead (inputs that change every frame, as a moving light's
-/// do, without moving anything). Returns the image and the activity the panel shows, frame by frame.
+/// `cornell` with its volume 1.5× the box (see [`place_volume`]), 256 RSM and 64 secondary samples and no
+/// jitter. With a positive `step` the volume jumps `step` cells along x and back every frame; with a
+/// negative one it stays and the light's intensity changes by 0.01 % every frame instead (inputs that
+/// change every frame, as a moving light's do, without moving anything). Returns the image and the activity
+/// the panel shows, frame by frame.
 fn moving_volume(step: f32) -> (HdrImage, Vec<bevy_diffuse_gi::radiance_hints::RhVolumeActivity>) {
     use bevy::prelude::*;
     use bevy_diffuse_gi::radiance_hints::RadianceHintsActivity;
@@ -625,11 +626,18 @@ fn moving_volume(step: f32) -> (HdrImage, Vec<bevy_diffuse_gi::radiance_hints::R
                   mut home: Local<Option<Transform>>,
                   activity: Res<RadianceHintsActivity>,
                   mut lights: Query<&mut SpotLight>,
-                  mut volumes: Query<(Entity, &RadianceHintsVolume, &mut Transform)>| {
-                let Ok((entity, volume, mut transform)) = volumes.single_mut() else {
+                  mut volumes: Query<(Entity, &mut RadianceHintsVolume, &mut Transform)>| {
+                let Ok((entity, mut volume, mut transform)) = volumes.single_mut() else {
                     return;
                 };
                 *frame += 1;
+                if *frame == 1 {
+                    // Low-noise updates: each run's field is then (nearly) the same whatever frame the
+                    // readback lands on, so what is left is the scroll's own error.
+                    volume.rsm_samples = 256;
+                    volume.secondary_samples = 64;
+                    volume.jitter = 0.0;
+                }
                 if let Some(a) = activity.get(entity) {
                     record.lock().unwrap().push(a);
                 }
@@ -639,7 +647,7 @@ fn moving_volume(step: f32) -> (HdrImage, Vec<bevy_diffuse_gi::radiance_hints::R
                         light.intensity *= if frame.is_multiple_of(2) { 1.0001 } else { 1.0 / 1.0001 };
                     }
                 }
-                place_volume(&mut home, volume, &mut transform, cells);
+                place_volume(&mut home, &volume, &mut transform, cells);
             },
         );
     })
@@ -715,8 +723,11 @@ fn a_volume_moving_by_whole_cells_scrolls_its_field_with_it() {
     // (`scroll.wgsl`; only the slab that came in is voxelised), so every hint keeps its place in the
     // world and the update is the amortised one of inputs that change every frame. Here the volume jumps
     // a cell and back every frame: the image must be that of the still volume whose inputs change every
-    // frame (the same amortised updates, nothing moving). Measured on lavapipe: block 0.068, energy 0.998;
-    // without the scroll (the field shown a cell off, then recomputed) 0.129.
+    // frame (the same amortised updates, nothing moving). With the default samples two runs of either
+    // differed by up to 0.098 (the seed follows the frame count, and the readback's frame varies), as much
+    // as the scroll's error: `moving_volume` raises the samples and drops the jitter. Measured on lavapipe
+    // then: block 0.029, energy 0.998 (two moving runs differ by up to 0.036; two still ones not at all);
+    // without the scroll (the field shown a cell off, then recomputed) 0.238, energy 0.868.
     let test = "rh_scrolled_volume";
     let (reference, _) = moving_volume(-1.0);
     let (moving, activity) = moving_volume(1.0);
@@ -729,7 +740,7 @@ fn a_volume_moving_by_whole_cells_scrolls_its_field_with_it() {
     eprintln!("{test}: moving vs still volume: block {:.4}, energy {:.4}", m.block_relative_rmse, m.energy_ratio);
     check(
         test,
-        m.block_relative_rmse < 0.09 && (m.energy_ratio - 1.0).abs() < 0.03,
+        m.block_relative_rmse < 0.08 && (m.energy_ratio - 1.0).abs() < 0.03,
         &moving,
         Some(&reference),
         format!("the moving volume's light differs from the still one's: block {:.4}, energy {:.4}", m.block_relative_rmse, m.energy_ratio),
