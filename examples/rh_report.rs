@@ -4,7 +4,7 @@
 //! ```text
 //! cargo run --release --example rh_report -- [--section NAME]... [--rounds N] [--docs docs/radiance_hints.md]
 //! ```
-//! Sections: `presets`, `bounces`, `ablation`, `cellar`, `tradeoff`, `timing`, `images` (default: all).
+//! Sections: `presets`, `scale`, `reconstruction`, `bounces`, `ablation`, `cellar`, `tradeoff`, `timing`, `images` (default: all).
 //! Each prints a Markdown table; with `--docs FILE` the table also replaces the text between the markers
 //! `<!-- rh_report:NAME -->` and `<!-- /rh_report:NAME -->` in FILE. Renders run one after another in this
 //! process on whatever Vulkan device wgpu picks (lavapipe on CI machines), at 256² unless a table says
@@ -338,14 +338,15 @@ impl Report {
         Ok(out)
     }
 
-    /// Extra bounces 0–6 with SH order 2 and 3 (medium otherwise), against the all-bounce truth and, for
+    /// Extra bounces 0–12 with SH order 2 and 3 (medium otherwise), against the all-bounce truth and, for
     /// 0 and 1 extra bounces, the truths with the same number of bounces.
     fn bounces(&mut self) -> Result<String, String> {
         let mut out = String::from(
             "| extra bounces | SH order 2: block / pixel / energy | SH order 3: block / pixel / energy | order 2 vs the truth with as many bounces |\n\
              |---|---|---|---|\n",
         );
-        for bounces in [0u32, 1, 2, 3, 4, 6] {
+        let default = RadianceHintsVolume::MEDIUM.extra_bounces;
+        for bounces in [0u32, 1, 2, 4, 8, 12] {
             let mut cells = Vec::new();
             let mut partial = String::from("–");
             for order in [ShOrder::Two, ShOrder::Three] {
@@ -359,7 +360,7 @@ impl Report {
                     partial = format!("{} bounce(s): {:.3} / {:.3} / {:.3}", bounces + 1, p.block_relative_rmse, p.relative_rmse, p.energy_ratio);
                 }
             }
-            out += &format!("| {bounces}{} | {} | {} | {partial} |\n", if bounces == 4 { " (default)" } else { "" }, cells[0], cells[1]);
+            out += &format!("| {bounces}{} | {} | {} | {partial} |\n", if bounces == default { " (default)" } else { "" }, cells[0], cells[1]);
         }
         Ok(out)
     }
