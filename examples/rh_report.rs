@@ -485,7 +485,13 @@ impl Report {
         }
         configs.push((32, 64));
         for (res, samples) in configs {
-            let rh = RadianceHintsVolume { resolution: UVec3::splat(res), rsm_samples: samples, ..RadianceHintsVolume::MEDIUM };
+            // A fixed grid: the default's adaptive sizing would ignore `resolution`.
+            let rh = RadianceHintsVolume {
+                sizing: bevy_diffuse_gi::radiance_hints::GridSizing::Fixed,
+                resolution: UVec3::splat(res),
+                rsm_samples: samples,
+                ..RadianceHintsVolume::MEDIUM
+            };
             let still = self.render(&HeadlessOptions { rh_fit_cells: false, ..cornell(rh.clone()) })?;
             let m = self.compare(still.image(), "cornell")?;
             let moving = self.render(&HeadlessOptions {
