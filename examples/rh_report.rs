@@ -27,7 +27,7 @@ use bevy_diffuse_gi::camera::{GiDebugView, GiMethod, GiOutput};
 use bevy_diffuse_gi::hdr_image::HdrImage;
 use bevy_diffuse_gi::headless::{self, HeadlessMethod, HeadlessOptions, HeadlessReport};
 use bevy_diffuse_gi::metrics::{self, ErrorMetrics};
-use bevy_diffuse_gi::radiance_hints::{DepthOcclusion, RadianceHintsVolume, SecondaryTransport};
+use bevy_diffuse_gi::radiance_hints::{DepthOcclusion, GridSizing, RadianceHintsVolume, SecondaryTransport};
 use bevy_diffuse_gi::scenes::StandardScene;
 use bevy_diffuse_gi::sh::ShOrder;
 
@@ -204,12 +204,11 @@ impl Report {
 
     /// The presets and the old fixed grid on rooms of 2 m to a 60 m field, plus the other light kinds.
     fn scale(&mut self) -> Result<String, String> {
-        use bevy_diffuse_gi::radiance_hints::GridSizing;
         let mut out = String::from(
             "| scene | setting | hints | volume memory | block rel. RMSE | pixel rel. RMSE | energy | blocks > 50 % off | still frame × frame without GI |\n\
              |---|---|---|---|---|---|---|---|---|\n",
         );
-        let fixed16 = RadianceHintsVolume { sizing: GridSizing::Fixed, resolution: bevy::math::UVec3::splat(16), extra_bounces: 4, ..RadianceHintsVolume::MEDIUM };
+        let fixed16 = RadianceHintsVolume { sizing: GridSizing::Fixed, resolution: UVec3::splat(16), extra_bounces: 4, ..RadianceHintsVolume::MEDIUM };
         let settings = [
             ("before: 16 along the longest side, 4 bounces", fixed16),
             ("low", RadianceHintsVolume::LOW),
@@ -487,7 +486,7 @@ impl Report {
         for (res, samples) in configs {
             // A fixed grid: the default's adaptive sizing would ignore `resolution`.
             let rh = RadianceHintsVolume {
-                sizing: bevy_diffuse_gi::radiance_hints::GridSizing::Fixed,
+                sizing: GridSizing::Fixed,
                 resolution: UVec3::splat(res),
                 rsm_samples: samples,
                 ..RadianceHintsVolume::MEDIUM
