@@ -24,11 +24,13 @@
 //! Modules: [`composite`] (the GI frame every method shares: the per-view indirect-light target, the
 //! composite into the image, debug views), the methods [`radiance_hints`], [`vpl`] (with the
 //! screen-space bias compensation of [`ssbc`]), the one-bounce gathers [`rsm_gather`] and [`drm`], and
-//! [`radiosity`] (implicit-visibility hierarchical radiosity, which needs no RSM),
-//! their shared input [`rsm`] (reflective shadow maps), the settings helpers of [`settings`],
+//! [`radiosity`] (implicit-visibility hierarchical radiosity, which needs no RSM) and [`photon_grid`]
+//! (the photon grid and SH field), their shared inputs [`rsm`] (reflective shadow maps) and
+//! [`background`] (the CPU methods' work off the main thread), the settings helpers of [`settings`],
 //! [`camera`] and [`light`] (the user's components), [`ui`] (the egui panel, feature `egui`). The measuring instruments: [`scene`] (CPU snapshot of the world), [`reference`](mod@reference)
 //! (path-traced ground truth), [`metrics`] (errors), [`scenes`] (standard scenes), [`headless`].
 
+pub mod background;
 pub mod camera;
 pub mod composite;
 pub mod drm;
@@ -165,9 +167,13 @@ pub struct MainThreadCost {
     pub voxels_ms: f32,
     /// Regenerating the VPLs (random walks over the snapshot).
     pub vpl_ms: f32,
-    /// The radiosity solve (elements, links, illumination; only what changed).
+    /// Radiosity's main-thread part: polling its background solve, starting the next (a copy of the
+    /// snapshot) and writing the drawn vertices while a solution blends in or a mesh moves. The solve
+    /// itself (elements, links, illumination) runs in the background ([`background`]).
     pub radiosity_ms: f32,
-    /// The photon grid's preparation (voxels, photons, R-grid, SH field; only when its inputs change).
+    /// The photon grid's main-thread part: polling its background preparation, starting the next and
+    /// writing the blended field. The preparation itself (voxels, photons, R-grid, SH field) runs in
+    /// the background.
     pub photon_grid_ms: f32,
 }
 

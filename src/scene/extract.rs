@@ -429,7 +429,7 @@ pub(crate) fn texture_from_image(image: &Image) -> Option<SnapshotTexture> {
     Some(SnapshotTexture {
         width: size.x,
         height: size.y,
-        texels,
+        texels: texels.into(),
     })
 }
 

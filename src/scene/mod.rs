@@ -197,14 +197,15 @@ impl SnapshotMaterial {
 pub struct SnapshotTexture {
     pub width: u32,
     pub height: u32,
-    /// Linear RGB texels with alpha, row-major.
-    pub texels: Vec<bevy::math::Vec4>,
+    /// Linear RGB texels with alpha, row-major; shared, so that copying the snapshot for a background
+    /// task copies no texels.
+    pub texels: Arc<[bevy::math::Vec4]>,
 }
 
 impl SnapshotTexture {
     /// A 1×1 white texture: the placeholder for an image not loaded (or not readable) yet.
     pub fn white() -> Self {
-        Self { width: 1, height: 1, texels: vec![bevy::math::Vec4::ONE] }
+        Self { width: 1, height: 1, texels: Arc::new([bevy::math::Vec4::ONE]) }
     }
 
     /// Bilinear sample at `uv` with repeat wrapping (glTF's default sampler).
@@ -547,7 +548,11 @@ pub struct GeometryChange {
 }
 
 /// The CPU snapshot of the world. See the [module docs](self).
-#[derive(Resource, Default)]
+///
+/// Cloning it is cheap (O(instances + materials + lights)): mesh geometry, texels and the environment
+/// are shared behind `Arc`s. The CPU methods clone it to hand their background tasks a frozen copy of
+/// the world ([`crate::background`]).
+#[derive(Resource, Default, Clone)]
 pub struct SceneSnapshot {
     /// Instances sorted by key.
     instances: Vec<SnapshotInstance>,
@@ -1165,7 +1170,7 @@ mod tests {
         let t = SnapshotTexture {
             width: 2,
             height: 1,
-            texels: vec![bevy::math::Vec4::ZERO, bevy::math::Vec4::ONE],
+            texels: Arc::new([bevy::math::Vec4::ZERO, bevy::math::Vec4::ONE]),
         };
         assert_eq!(t.sample(Vec2::new(0.25, 0.5)), bevy::math::Vec4::ZERO);
         assert_eq!(t.sample(Vec2::new(0.75, 0.5)), bevy::math::Vec4::ONE);
