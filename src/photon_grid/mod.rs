@@ -79,11 +79,18 @@
 //!
 //! # Cost
 //! Nothing runs without an active camera using [`GiMethod::PhotonGrid`](crate::camera::GiMethod).
-//! Work happens in `PostUpdate` on the main thread's rayon pool, and only when its inputs change: the
-//! V-grid when geometry changes, photons, R-grid and SH field when geometry or lighting does (as the
-//! paper, which redoes all four every frame). [`PhotonGridActivity`] and the diagnostics
-//! `diffuse_gi/photon_{voxelize,trace,rgrid,field}` report the paper's Table 1 stages (main-thread
-//! milliseconds); the gather is the GPU span `diffuse_gi/photon_gather`.
+//! The preparation never runs on the main thread: it is a task on Bevy's `AsyncComputeTaskPool`
+//! (using the rayon pool inside) over a copy of the scene snapshot ([`crate::background`]), started
+//! when what it depends on changed since the last one began, one at a time (changes made meanwhile are
+//! coalesced into the next). It redoes the V-grid when geometry changed, and photons, R-grid and SH
+//! field when geometry, lighting or a preparation setting did (the paper redoes all four every frame
+//! on the GPU). The gather-only settings (`intensity`, `r_max`, `gather_samples`,
+//! `obscurance_distance`) run no preparation. The last field is gathered from until the new one is
+//! ready, then blended in over [`BLEND_FRAMES`](crate::background::BLEND_FRAMES) frames, cell by cell.
+//! The main thread pays for polling, copying the snapshot when a task starts and writing the blended
+//! coefficients ([`MainThreadCost::photon_grid_ms`](crate::MainThreadCost)). [`PhotonGridActivity`]
+//! and the diagnostics `diffuse_gi/photon_{voxelize,trace,rgrid,field}` report the paper's Table 1
+//! stages (milliseconds of the background task); the gather is the GPU span `diffuse_gi/photon_gather`.
 //!
 //! # Measured (`docs/photon_grid.md`, 256², lavapipe for the gather, two CPU cores for the preparation)
 //! Default preset (32 cells, 262 144 photons, eight reflections, `N_sh` 256), block relative RMSE /
@@ -106,9 +113,9 @@
 //! to this work.)
 //!
 //! # Known issues
-//! * The preparation runs on the main thread whenever geometry or lighting changes: a moving mesh or
-//!   light costs the whole preparation (seconds at the high preset), not one in proportion to what
-//!   moved, and the frame waits for it.
+//! * A moving mesh or light costs a whole preparation (seconds at the high preset), not one in
+//!   proportion to what moved: the frame does not wait for it, but the light lags by one preparation.
+//!   The paper's GPU preparation (and re-tracing only the photons a change touches) is not done yet.
 //! * One grid over the whole scene's box: a large scene gets large cells (`open_field`), and a surface
 //!   smaller than a cell (a small object, a light 10 cm under a ceiling) is averaged over the cell.
 //! * A wall thinner than an SH cell has both faces in one R-grid cell; its faces are kept apart by the
@@ -128,6 +135,7 @@ use bevy::render::RenderApp;
 use bevy::render::extract_resource::{ExtractResource, ExtractResourcePlugin};
 use bevy::render::render_resource::ShaderType;
 
+use crate::background::{BackgroundJob, Blend};
 use crate::camera::{DiffuseGi, GiMethod};
 use crate::light::GiLight;
 use crate::scene::{SceneSnapshot, SceneSnapshotSystems};
@@ -144,39 +152,45 @@ pub struct PhotonGridSettings {
     /// SH-grid cells along the longest side of the scene's bounding box (the V-grid has four times as
     /// many; one more cell pads each side). Range 4–96; low 16, medium 32 (the default, the paper's for
     /// rooms), high 64 (the paper's for Sponza). Cost: memory and voxelisation grow with the cube; the
-    /// field's probes with the square (they follow the surfaces).
+    /// field's probes with the square (they follow the surfaces). A change: a new preparation (V-grid
+    /// included), in the background.
     pub resolution: u32,
     /// Photons emitted per update over all sources. Range 1 024 – 4 194 304; low 65 536, medium 262 144
-    /// (the paper's), high 1 048 576. Cost: linear (tracing and the R-grid's sort).
+    /// (the paper's), high 1 048 576. Cost: linear (tracing and the R-grid's sort). A change: new
+    /// photons, R-grid and field (the V-grid is kept), in the background.
     pub photons: u32,
     /// Stored reflections per photon path (the final gather adds one more bounce); Russian roulette ends
     /// most paths earlier. Range 1–32; low 4 (the paper's), medium 8 (the default), high 16. The paper
     /// saw no visual difference beyond four, but light is lost: in `cornell` (albedo about 0.75) the
     /// surfaces' radiance is 0.85 of the path tracer's with 4 and 0.97 with 8. Cost: at most linear in
-    /// the stored photons (`cornell`: 2.0 N with 4, 2.6 N with 8).
+    /// the stored photons (`cornell`: 2.0 N with 4, 2.6 N with 8). A change: new photons, R-grid and
+    /// field, in the background.
     pub max_reflections: u32,
     /// Ray directions per SH probe (`N_sh`). Range 16–2048; low 128, medium 256, high 400 (the
-    /// paper's). Cost: linear in the field's construction.
+    /// paper's). Cost: linear in the field's construction. A change: new photons, R-grid and field, in
+    /// the background.
     pub sh_directions: u32,
     /// The coarsest R-grid level the radiance filter of §3.4.3 may read for a far hit (level `k` has
     /// cells `2^k` times the SH cell's side); 0 reads the base level only. Range 0–5; default 1 (the
     /// paper's filter is unbounded). A coarse cell mixes the light of surfaces on both sides of a wall
     /// and spreads a small surface's flux over its whole face: block RMSE / energy on `cornell` 0.109 /
     /// 0.96 with 0, 0.141 / 0.92 with 1, 0.211 / 0.86 unbounded; on `cellar` 0.199 / 0.88, 0.181 / 1.02,
-    /// 0.290 / 1.10 (the base level alone is darker where photons are few). Cost: none.
+    /// 0.290 / 1.10 (the base level alone is darker where photons are few). Cost: none per frame; a
+    /// change: new photons, R-grid and field, in the background.
     pub filter_levels: u32,
     /// Hemisphere directions of the final gather (`N_d`, §4.2); 0 integrates the nine coefficients
-    /// exactly. Range 0–256; default 0. Cost: per pixel, linear (0 costs about as much as 4).
+    /// exactly. Range 0–256; default 0. Cost: per pixel, linear (0 costs about as much as 4). A change
+    /// runs no preparation: the gather reads it in the same frame.
     pub gather_samples: u32,
     /// Extent of the gather's distance weight `w_sh`, in SH cells. Range 1–3; default 1.75 (the
-    /// paper's). Cost: none.
+    /// paper's). Cost: none; a change runs no preparation.
     pub r_max: f32,
     /// Distance in metres at which the obscurance of §4.4 (`ρ(d) = min(d / D, 1)` over the distance
     /// field) stops darkening; 0 turns it off. Range 0–1000; default 0 (it is not physically based).
     /// The field keeps distances up to four SH cells, so a larger `D` darkens everything.
-    /// Cost: per pixel, a second pass over the gather's directions.
+    /// Cost: per pixel, a second pass over the gather's directions. A change runs no preparation.
     pub obscurance_distance: f32,
-    /// Multiplies the indirect light. Range 0–1000; default 1. Cost: none.
+    /// Multiplies the indirect light. Range 0–1000; default 1. Cost: none; a change runs no preparation.
     pub intensity: f32,
 }
 
@@ -257,7 +271,7 @@ pub struct PhotonGridOutput {
     pub occupancy: Arc<Vec<u32>>,
 }
 
-/// Main-thread milliseconds of the preparation's stages (the paper's Table 1 rows).
+/// Milliseconds of the preparation's stages in the background task (the paper's Table 1 rows).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct PhotonGridTimes {
     pub voxelize_ms: f32,
@@ -282,19 +296,35 @@ pub struct PhotonGridActivity {
     pub stats: PhotonStats,
     /// The stages of the last update, ms (zero for one that did not run).
     pub times: PhotonGridTimes,
-    /// Updates so far.
+    /// Preparations finished so far (background tasks). A change of a gather-only setting
+    /// (`intensity`, `r_max`, `gather_samples`, `obscurance_distance`) runs none.
     pub updates: u64,
+    /// Whether the field shown is not yet the one of the scene as it is now: a preparation is running
+    /// or due, or a new field is still being blended in.
+    pub busy: bool,
+    /// Frames since the last preparation was started from the scene as it was then.
+    pub frames_since_start: u32,
 }
 
-/// The main-world state: the grids and what they were built from.
+/// The grids the preparation keeps between runs: the state a background preparation takes and hands
+/// back.
+#[derive(Default)]
+pub struct PhotonGridCore {
+    pub vgrid: VGrid,
+    voxels_key: Option<(u64, u32)>,
+}
+
+/// The main-world state: the grids (in a background task while one runs), the running preparation and
+/// the field shown.
 #[derive(Resource, Default)]
 pub struct PhotonGridState {
-    pub vgrid: VGrid,
-    pub field: ShField,
-    voxels_key: Option<(u64, u32)>,
-    field_key: Option<FieldKey>,
+    /// `None` while a background preparation holds it.
+    core: Option<Box<PhotonGridCore>>,
+    job: BackgroundJob<FieldKey, Prepared>,
+    shown: Option<ShownField>,
 }
 
+/// Everything the preparation depends on (not the gather-only settings).
 #[derive(Clone, Debug, PartialEq)]
 struct FieldKey {
     geometry: u64,
@@ -303,6 +333,37 @@ struct FieldKey {
     exposure: u32,
     environment: u64,
     settings: PhotonGridSettings,
+}
+
+/// What a background preparation hands back.
+struct Prepared {
+    core: Box<PhotonGridCore>,
+    /// `None` for an empty scene.
+    field: Option<(GridLayout, ShField)>,
+    occupancy: Arc<Vec<u32>>,
+    activity: PhotonGridActivity,
+}
+
+/// The field drawn, blending from the previous one.
+struct ShownField {
+    layout: GridLayout,
+    cell_probe: Arc<Vec<u32>>,
+    occupancy: Arc<Vec<u32>>,
+    /// Nine coefficients per probe: where the blend starts (the previous field at the same cells) and
+    /// where it ends.
+    from: Vec<Vec4>,
+    to: Vec<Vec4>,
+    blend: Blend,
+    /// The gather settings last drawn with.
+    drawn: Option<PhotonGridSettings>,
+}
+
+impl PhotonGridSettings {
+    /// The settings the preparation reads: the gather-only fields set to their defaults.
+    fn preparation(&self) -> Self {
+        let d = Self::default();
+        Self { gather_samples: d.gather_samples, r_max: d.r_max, obscurance_distance: d.obscurance_distance, intensity: d.intensity, ..self.clone() }
+    }
 }
 
 /// Distances of the SH distance field are clamped to this many SH cells: the gather's visibility only
@@ -360,8 +421,10 @@ pub fn missing_capabilities(limits: &bevy::render::settings::WgpuLimits) -> Vec<
     missing
 }
 
-/// Keeps the field current for the first active photon-grid camera: the V-grid when geometry changes,
-/// photons, R-grid and field when geometry or lighting changes.
+/// Keeps the field current for the first active photon-grid camera, without waiting for it: takes a
+/// finished background preparation (V-grid when geometry changed; photons, R-grid and SH field), starts
+/// the next when the scene or a preparation setting changed since the last one began, and writes the
+/// output (blending a new field in; gather-only settings are applied here, with no preparation).
 #[expect(clippy::too_many_arguments, reason = "the preparation reads the cameras, the lights and the snapshot")]
 fn update_photon_grid(
     mut commands: Commands,
@@ -379,10 +442,12 @@ fn update_photon_grid(
         .iter()
         .find(|(camera, gi, _, _)| camera.is_active && gi.enabled && gi.method == GiMethod::PhotonGrid);
     let Some((_, _, settings, exposure)) = camera else {
-        if state.voxels_key.is_some() {
-            *state = PhotonGridState::default();
+        if state.shown.is_some() || state.job.is_running() || state.core.is_some() {
+            state.job.reset();
+            (state.core, state.shown) = (None, None);
             let generation = output.generation + 1;
             *output = PhotonGridOutput { generation, ..default() };
+            activity.busy = false;
         }
         return;
     };
@@ -395,42 +460,150 @@ fn update_photon_grid(
     let exposure = exposure.copied().unwrap_or_default().exposure();
     let mut lights: Vec<Entity> = gi_lights.iter().collect();
     lights.sort();
-    let field_key = Some(FieldKey {
+    let key = FieldKey {
         geometry: snapshot.geometry_generation,
         lights: snapshot.light_generation,
         gi_lights: lights,
         exposure: exposure.to_bits(),
         environment: snapshot.environment_generation,
-        settings: settings.clone(),
-    });
-    if state.field_key == field_key {
-        return;
-    }
+        settings: settings.preparation(),
+    };
     let state = &mut *state;
+
+    // 1. A finished preparation: its grids come back, its field is blended in.
+    if let Some((_, prepared)) = state.job.poll() {
+        let Prepared { core, field, occupancy, activity: done } = prepared;
+        state.core = Some(core);
+        let t = done.times;
+        for (path, ms) in [
+            (&DIAGNOSTIC_VOXELIZE, t.voxelize_ms),
+            (&DIAGNOSTIC_TRACE, t.trace_ms),
+            (&DIAGNOSTIC_RGRID, t.rgrid_ms),
+            (&DIAGNOSTIC_FIELD, t.field_ms),
+        ] {
+            if ms > 0.0 {
+                diagnostics.add_measurement(path, || ms as f64);
+            }
+        }
+        *activity = PhotonGridActivity { updates: activity.updates + 1, frames_since_start: activity.frames_since_start, ..done };
+        state.shown = field.map(|(layout, field)| ShownField::after(state.shown.take(), layout, field, occupancy));
+        if state.shown.is_none() {
+            let generation = output.generation + 1;
+            *output = PhotonGridOutput { generation, ..default() };
+        }
+    }
+
+    // 2. The scene or a preparation setting changed since the last preparation began: start the next.
+    if state.job.wants(&key) {
+        let mut core = state.core.take().unwrap_or_default();
+        let snapshot = snapshot.clone();
+        let prepare_key = key.clone();
+        state.job.start(key.clone(), move || prepare(&mut core, &snapshot, &prepare_key).with_core(core));
+        activity.frames_since_start = 0;
+    } else {
+        activity.frames_since_start += 1;
+    }
+
+    // 3. Write the output when the field, the blend or a gather setting changed.
+    if let Some(shown) = &mut state.shown {
+        let weight = shown.blend.advance();
+        if weight.is_some() || shown.drawn.as_ref() != Some(&settings) {
+            shown.drawn = Some(settings.clone());
+            let layout = shown.layout;
+            let coefficients = shown.current();
+            let generation = output.generation + 1;
+            *output = PhotonGridOutput {
+                generation,
+                grid: PhotonGridUniform {
+                    origin: layout.origin,
+                    cell_size: layout.cell,
+                    dims: layout.dims,
+                    r_max: settings.r_max * layout.cell,
+                    intensity: settings.intensity,
+                    gather_samples: settings.gather_samples,
+                    obscurance_distance: settings.obscurance_distance,
+                    probes: (coefficients.len() / 9) as u32,
+                },
+                cell_probe: shown.cell_probe.clone(),
+                coefficients: Arc::new(coefficients),
+                occupancy: shown.occupancy.clone(),
+            };
+        }
+    }
+    activity.busy = state.job.is_running() || !state.job.is_current(&key) || state.shown.as_ref().is_some_and(|s| !s.blend.is_done());
+    cost.photon_grid_ms = frame_start.elapsed().as_secs_f32() * 1e3;
+}
+
+impl ShownField {
+    /// The new field, blending from `previous` at the cells both have a probe in (same grid only).
+    fn after(previous: Option<Self>, layout: GridLayout, field: ShField, occupancy: Arc<Vec<u32>>) -> Self {
+        let to: Vec<Vec4> = field.coefficients.iter().flatten().copied().collect();
+        let previous = previous.filter(|p| p.layout == layout && p.cell_probe.len() == field.cell_probe.len());
+        let (from, blend) = match previous {
+            Some(previous) => {
+                let old = previous.current();
+                let mut from = to.clone();
+                for (&new, &was) in field.cell_probe.iter().zip(previous.cell_probe.iter()) {
+                    if new != u32::MAX && was != u32::MAX {
+                        let (new, was) = (new as usize * 9, was as usize * 9);
+                        from[new..new + 9].copy_from_slice(&old[was..was + 9]);
+                    }
+                }
+                (from, Blend::start())
+            }
+            None => (to.clone(), Blend::DONE),
+        };
+        Self { layout, cell_probe: Arc::new(field.cell_probe), occupancy, from, to, blend, drawn: None }
+    }
+
+    /// The coefficients on screen now.
+    fn current(&self) -> Vec<Vec4> {
+        let t = self.blend.weight();
+        if t >= 1.0 {
+            return self.to.clone();
+        }
+        self.from.iter().zip(&self.to).map(|(a, b)| a.lerp(*b, t)).collect()
+    }
+}
+
+/// What [`prepare`] made, before the grids go back with it.
+struct PreparedField {
+    field: Option<(GridLayout, ShField)>,
+    occupancy: Arc<Vec<u32>>,
+    activity: PhotonGridActivity,
+}
+
+impl PreparedField {
+    fn with_core(self, core: Box<PhotonGridCore>) -> Prepared {
+        Prepared { core, field: self.field, occupancy: self.occupancy, activity: self.activity }
+    }
+}
+
+/// One preparation, on a background task: the V-grid (only when geometry or the resolution changed
+/// since `core` was built), photons, R-grid and SH field.
+fn prepare(core: &mut PhotonGridCore, snapshot: &SceneSnapshot, key: &FieldKey) -> PreparedField {
+    let settings = &key.settings;
+    let exposure = f32::from_bits(key.exposure);
     let mut times = PhotonGridTimes::default();
     let Some((lo, hi)) = snapshot.bounds() else {
-        state.field_key = field_key;
-        let generation = output.generation + 1;
-        *output = PhotonGridOutput { generation, ..default() };
-        return;
+        return PreparedField { field: None, occupancy: Arc::default(), activity: PhotonGridActivity::default() };
     };
     let layout = GridLayout::fit(lo, hi, settings.resolution);
 
     // 1. V-grid and SH-grid, when geometry or the resolution changed.
     let voxels_key = Some((snapshot.geometry_generation, settings.resolution));
-    if state.voxels_key != voxels_key || state.vgrid.layout != Some(layout) {
+    if core.voxels_key != voxels_key || core.vgrid.layout != Some(layout) {
         let start = std::time::Instant::now();
-        state.vgrid = VGrid::build(&snapshot, layout);
-        state.voxels_key = voxels_key;
+        core.vgrid = VGrid::build(snapshot, layout);
+        core.voxels_key = voxels_key;
         times.voxelize_ms = start.elapsed().as_secs_f32() * 1e3;
     }
 
     // 2. Photons.
     let start = std::time::Instant::now();
-    let key = field_key.as_ref().unwrap();
     let gi_lights: Vec<_> = snapshot.lights.iter().filter(|l| key.gi_lights.contains(&l.entity)).map(|l| l.light).collect();
     let params = TraceParams { photons: settings.photons, max_reflections: settings.max_reflections, seed: 0x9e37_79b9, exposure };
-    let (photons, stats) = grid::trace_photons(&snapshot, &gi_lights, snapshot.environment.as_deref(), &state.vgrid, &params);
+    let (photons, stats) = grid::trace_photons(snapshot, &gi_lights, snapshot.environment.as_deref(), &core.vgrid, &params);
     times.trace_ms = start.elapsed().as_secs_f32() * 1e3;
 
     // 3. R-grid.
@@ -446,50 +619,21 @@ fn update_photon_grid(
         max_distance: DISTANCE_CELLS * layout.cell,
         filter_levels: settings.filter_levels,
     };
-    state.field = ShField::build(&state.vgrid, &rgrid, snapshot.environment.as_deref(), &field_params);
+    let field = ShField::build(&core.vgrid, &rgrid, snapshot.environment.as_deref(), &field_params);
     times.field_ms = start.elapsed().as_secs_f32() * 1e3;
-    state.field_key = field_key;
 
-    let field = &state.field;
-    let generation = output.generation + 1;
-    *output = PhotonGridOutput {
-        generation,
-        grid: PhotonGridUniform {
-            origin: layout.origin,
-            cell_size: layout.cell,
-            dims: layout.dims,
-            r_max: settings.r_max * layout.cell,
-            intensity: settings.intensity,
-            gather_samples: settings.gather_samples,
-            obscurance_distance: settings.obscurance_distance,
-            probes: field.coefficients.len() as u32,
-        },
-        cell_probe: Arc::new(field.cell_probe.clone()),
-        coefficients: Arc::new(field.coefficients.iter().flatten().copied().collect()),
-        occupancy: Arc::new(state.vgrid.occupancy_words()),
-    };
-    cost.photon_grid_ms = frame_start.elapsed().as_secs_f32() * 1e3;
-    for (path, ms) in [
-        (&DIAGNOSTIC_VOXELIZE, times.voxelize_ms),
-        (&DIAGNOSTIC_TRACE, times.trace_ms),
-        (&DIAGNOSTIC_RGRID, times.rgrid_ms),
-        (&DIAGNOSTIC_FIELD, times.field_ms),
-    ] {
-        if ms > 0.0 {
-            diagnostics.add_measurement(path, || ms as f64);
-        }
-    }
-    *activity = PhotonGridActivity {
+    let activity = PhotonGridActivity {
         dims: layout.dims,
-        boundary_v_cells: state.vgrid.boundary_cells(),
-        boundary_sh_cells: state.vgrid.sh_boundary.iter().filter(|b| **b).count(),
+        boundary_v_cells: core.vgrid.boundary_cells(),
+        boundary_sh_cells: core.vgrid.sh_boundary.iter().filter(|b| **b).count(),
         probes: field.coefficients.len(),
         inside: field.inside,
         photons: photons.len(),
         stats,
         times,
-        updates: activity.updates + 1,
+        ..default()
     };
+    PreparedField { field: Some((layout, field)), occupancy: Arc::new(core.vgrid.occupancy_words()), activity }
 }
 
 #[cfg(test)]

@@ -74,14 +74,22 @@
 //!
 //! # Cost
 //! Nothing runs without an active camera using [`GiMethod::Radiosity`](crate::camera::GiMethod::Radiosity).
-//! All work is on the main thread's rayon pool, in `PostUpdate`, and only when its inputs change: the
-//! elements are rebuilt when meshes are added, removed or re-meshed (a skinned mesh's new pose), and
-//! moved by a transform when an instance moves (O(its elements), then a bottom-up refit); links are
-//! rebuilt whenever any geometry changes (every frame while something moves, as in the paper);
-//! lighting alone (a light or its intensity) redoes only the illumination. The GPU draws the element
-//! triangles once per view (time span `diffuse_gi/radiosity_display`). [`RadiosityActivity`] and the
-//! diagnostics `diffuse_gi/radiosity_{update_elements,links,refine_push,illumination}` report the
-//! paper's Table 1 stages per solve (main-thread milliseconds).
+//! The solve never runs on the main thread: it is a task on Bevy's `AsyncComputeTaskPool` (using the
+//! rayon pool inside) over a copy of the scene snapshot ([`crate::background`]), started when what it
+//! depends on changed since the last solve began, and only one at a time: changes made while a solve
+//! runs are coalesced into the next. Until a solve finishes the previous solution is drawn; a new one
+//! is blended in over [`BLEND_FRAMES`](crate::background::BLEND_FRAMES) frames, and the drawn elements
+//! of an instance that moved since its solve follow its transform. Within a solve, each stage runs
+//! only when its inputs changed: the elements are rebuilt when meshes are added, removed or re-meshed
+//! (a skinned mesh's new pose) and moved by a transform when an instance moves (O(its elements), then
+//! a bottom-up refit); links are rebuilt whenever any geometry changes; lighting alone (a light, the
+//! sky, the bounces) redoes only the illumination; [`intensity`](RadiositySettings::intensity) only
+//! rescales what is drawn. The main thread pays for polling the task, copying the snapshot when one
+//! starts (O(instances)) and rewriting the drawn vertices while a solution blends in or an instance
+//! moves (O(elements)): [`MainThreadCost::radiosity_ms`](crate::MainThreadCost). The GPU draws the
+//! element triangles once per view (time span `diffuse_gi/radiosity_display`). [`RadiosityActivity`]
+//! and the diagnostics `diffuse_gi/radiosity_{update_elements,links,refine_push,illumination}` report
+//! the paper's Table 1 stages per solve (milliseconds of the background task).
 //!
 //! # Measured (`docs/radiosity.md`, 256², lavapipe for the display, two CPU cores for the solve)
 //! Default preset (6 × 16 × 16 bins, 8 bounces), block relative RMSE / energy against the full
@@ -111,8 +119,9 @@
 //!   its shape): the rim of an opening seen from far away closes some of it, and `sky_room`'s floor
 //!   gets about 70 % of the sky the truth gives it. Two facing squares exchange about 10 % too much.
 //! * Links are rebuilt from scratch on any geometry change, O(N log N) in the elements of the whole
-//!   scene and seconds for a room of 20 000 elements on two cores: a moving mesh makes the solution lag
-//!   (the solve runs on the main thread; it is not yet amortised or moved to a task).
+//!   scene and seconds for a room of 20 000 elements on two cores: the frame does not wait for them,
+//!   but the light of a moving mesh lags by one solve (the paper's §4 update, keeping the links of
+//!   elements that did not move, is not implemented yet).
 //! * A small bright source (an emissive panel) covers few bins from most receivers: its light on the
 //!   walls is blotchy, more so with fewer bins.
 //! * Bevy lights every surface with an `EnvironmentMapLight`'s *diffuse* map itself, unoccluded; with
@@ -137,6 +146,7 @@ use rayon::prelude::*;
 
 pub use solver::{LinkTransfer, RadiositySolver, SolveParams, StageTimes};
 
+use crate::background::{BackgroundJob, Blend};
 use crate::camera::{DiffuseGi, GiMethod};
 use crate::light::GiLight;
 use crate::scene::{SceneSnapshot, SceneSnapshotSystems};
@@ -158,36 +168,40 @@ pub struct RadiositySettings {
     /// element for the leaves' links plus as much per hierarchy node while links are made (16 bins:
     /// 12 KiB each, 0.5 GiB for `sponza_like`'s 25 000 elements; 24 bins 2.25 times that); the gather is
     /// linear in `N²`, link creation grows faster (`cornell`: 8 bins 0.37 s, 12 1.0 s, 16 2.2 s on two
-    /// cores).
+    /// cores). A change: new links and lighting, in the background.
     pub bins: u32,
     /// Light bounces: 1 is light reflected once (the GI lights' and emitters' light gathered once); each
     /// more adds one more reflection. Range 1–16; default 8 (low 4, high 16): the second room of
     /// `cellar`, lit through a door, is 0.57 block RMSE with 4 and 0.27 with 8; `cornell` 0.145 and
     /// 0.159. Cost: one gather over all bins of all elements per bounce (a few percent of a solve), and
-    /// only when the lighting changes.
+    /// only when the lighting changes. A change: new lighting only (no new links), in the background.
     pub bounces: u32,
     /// Stop bouncing when the bounces still to come would add less than this fraction of the light
     /// (each lit element's relative change in the last bounce, averaged, and continued geometrically by
-    /// the ratio of the last two bounces). Range 0–1; default 0.01. Cost: none; it saves bounces.
+    /// the ratio of the last two bounces). Range 0–1; default 0.01. Cost: none; it saves bounces. A
+    /// change: new lighting only, in the background.
     pub stop_threshold: f32,
     /// A node is subdivided when its solid angle exceeds this many bin solid angles (§4.2.2). Range
     /// 0.05–8; default 1 (the paper's rule). Lower: finer links, fewer light leaks, more links. Cost:
-    /// link creation grows roughly with its inverse.
+    /// link creation grows roughly with its inverse. A change: new links and lighting, in the background.
     pub subdivision_threshold: f32,
     /// Longest triangle edge of the element mesh as a fraction of the scene's bounding-box diagonal;
     /// longer triangles are cut (0 keeps the meshes' own vertices, the paper's choice, which leaks light
     /// on coarse meshes: its Fig. 10d). Range 0–0.5; default 1/32 (low 1/20, high 1/32). Finer elements
     /// need finer bins: on `cornell` with 16 bins, 1/48 is worse than 1/32 (0.21 against 0.16). Cost:
-    /// the element count grows with the inverse square; everything else with the element count.
+    /// the element count grows with the inverse square; everything else with the element count. A
+    /// change: new elements, links and lighting (a full solve), in the background.
     pub element_size: f32,
     /// How a link's sender contributes. Default [`LinkTransfer::BinSolidAngle`] (`ElementArea`, Eq. 5
-    /// as printed, loses half of `cornell`'s light). No difference in cost worth measuring.
+    /// as printed, loses half of `cornell`'s light). No difference in cost worth measuring. A change:
+    /// new lighting only, in the background.
     pub transfer: LinkTransfer,
     /// Radiance of a constant sky seen through empty bins, linear RGB in cd/m² (before exposure), added
     /// to the camera's `EnvironmentMapLight` where it has one. Default black (no sky). Each component
-    /// 0–10⁶. Cost: none (empty bins are visited anyway).
+    /// 0–10⁶. Cost: none (empty bins are visited anyway). A change: new lighting only, in the background.
     pub sky: Vec3,
-    /// Multiplies the indirect light. Range 0–1000; default 1. Cost: none.
+    /// Multiplies the indirect light. Range 0–1000; default 1. Cost: none; a change runs no solve, it
+    /// rescales the drawn light in the same frame.
     pub intensity: f32,
 }
 
@@ -275,15 +289,21 @@ pub struct RadiosityActivity {
     /// Surface elements (vertices after subdivision) and hierarchy nodes.
     pub elements: usize,
     pub nodes: usize,
-    /// The stages of the last solve, ms (the paper's Table 1 rows); zero for a stage that did not run.
+    /// The stages of the last solve, ms of the background task (the paper's Table 1 rows); zero for a
+    /// stage that did not run.
     pub times: StageTimes,
-    /// Solves so far (frames in which anything was recomputed).
+    /// Solves finished so far (background tasks that recomputed anything).
     pub solves: u64,
-    /// What the last solve redid.
+    /// What the last finished solve redid.
     pub last: RadiosityWork,
+    /// Whether the light shown is not yet the solution of the scene as it is now: a solve is running
+    /// or due, or a new solution is still being blended in.
+    pub busy: bool,
+    /// Frames since the last solve was started from the scene as it was then (0 while none ran).
+    pub frames_since_start: u32,
 }
 
-/// How much of the solution a frame recomputed.
+/// How much of the solution a solve recomputed.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum RadiosityWork {
     /// Nothing changed.
@@ -297,9 +317,9 @@ pub enum RadiosityWork {
     Rebuild,
 }
 
-/// The main-world state of the solver.
-#[derive(Resource, Default)]
-pub struct RadiosityState {
+/// The solver and what it was built from: the state a background solve takes and hands back.
+#[derive(Default)]
+pub struct RadiosityCore {
     pub solver: RadiositySolver,
     /// Per snapshot instance: key, version and `world_from_local` the elements were made with, and their
     /// element range.
@@ -313,17 +333,56 @@ pub struct RadiosityState {
     /// What the links were built from: geometry generation, bins and subdivision threshold (bits).
     links_key: Option<(u64, u32, u32)>,
     /// What the lighting was computed from.
-    lighting_key: Option<LightingKey>,
+    lighting_key: Option<SolveKey>,
 }
 
+/// The main-world state: the solver (in a background task while one runs), the running solve and the
+/// solution shown.
+#[derive(Resource, Default)]
+pub struct RadiosityState {
+    /// `None` while a background solve holds it.
+    core: Option<Box<RadiosityCore>>,
+    job: BackgroundJob<SolveKey, Solution>,
+    shown: Option<Shown>,
+}
+
+/// Everything a solve depends on: what the snapshot's generations say of the world, and the settings
+/// that change the solution (not `intensity`, which only scales what is drawn).
 #[derive(Clone, Debug, PartialEq)]
-struct LightingKey {
+struct SolveKey {
     geometry: u64,
     lights: u64,
     gi_lights: Vec<Entity>,
     exposure: u32,
     environment: u64,
     settings: RadiositySettings,
+}
+
+/// What a background solve hands back.
+struct Solution {
+    core: Box<RadiosityCore>,
+    work: RadiosityWork,
+    times: StageTimes,
+    /// Gathered irradiance per element, lux (empty when nothing was recomputed).
+    gathered: Vec<Vec3>,
+    /// The drawn element vertices, world space, as solved.
+    vertices: Vec<Vec3>,
+    indices: Arc<Vec<u32>>,
+    /// Per instance: key, `world_from_local` as solved and element range, so that the drawn elements
+    /// follow instances that move on while the next solve runs.
+    instances: Vec<(u64, Affine3A, std::ops::Range<usize>)>,
+}
+
+/// The solution drawn, blending from the previous one.
+struct Shown {
+    from: Vec<Vec3>,
+    to: Vec<Vec3>,
+    blend: Blend,
+    vertices: Vec<Vec3>,
+    indices: Arc<Vec<u32>>,
+    instances: Vec<(u64, Affine3A, std::ops::Range<usize>)>,
+    /// The snapshot generation and intensity last drawn with.
+    drawn: Option<(u64, u32)>,
 }
 
 pub use crate::scene::environment::occluded_environment;
@@ -441,8 +500,9 @@ fn direct_irradiance(snapshot: &SceneSnapshot, elements: &Elements, gi_lights: &
         .collect()
 }
 
-/// Keeps the radiosity solution current for the first active radiosity camera: elements, links and
-/// lighting, each only when what it depends on changed.
+/// Keeps the radiosity solution current for the first active radiosity camera, without waiting for it:
+/// takes a finished background solve, starts the next when the scene or the settings changed since the
+/// last one began, and draws the solution shown (blending a new one in, following moved instances).
 #[expect(clippy::too_many_arguments, reason = "the solve reads the cameras, the lights and the snapshot")]
 fn update_radiosity(
     mut commands: Commands,
@@ -461,10 +521,12 @@ fn update_radiosity(
         .iter()
         .find(|(camera, gi, _, _)| camera.is_active && gi.enabled && gi.method == GiMethod::Radiosity);
     let Some((_, _, settings, exposure)) = camera else {
-        if state.elements_key.is_some() {
-            *state = RadiosityState::default();
+        if state.shown.is_some() || state.job.is_running() || state.core.is_some() {
+            state.job.reset();
+            (state.core, state.shown) = (None, None);
             let generation = output.generation + 1;
             *output = RadiosityOutput { generation, ..default() };
+            activity.busy = false;
         }
         return;
     };
@@ -474,87 +536,201 @@ fn update_radiosity(
     };
     let settings = settings.cloned().unwrap_or_default().sanitized().0;
     let exposure = exposure.copied().unwrap_or_default().exposure();
-    let params = settings.params();
+    let mut lights: Vec<Entity> = gi_lights.iter().collect();
+    lights.sort();
+    let key = SolveKey {
+        geometry: snapshot.geometry_generation,
+        lights: snapshot.light_generation,
+        gi_lights: lights,
+        exposure: exposure.to_bits(),
+        environment: snapshot.environment_generation,
+        settings: RadiositySettings { intensity: 1.0, ..settings.clone() },
+    };
     let state = &mut *state;
+
+    // 1. A finished solve: its solver comes back, its solution is blended in.
+    if let Some((_, solution)) = state.job.poll() {
+        let Solution { core, work, times, gathered, vertices, indices, instances } = solution;
+        *activity = RadiosityActivity {
+            elements: core.solver.elements.len(),
+            nodes: core.solver.hierarchy.nodes.len(),
+            times,
+            solves: activity.solves + (work != RadiosityWork::Reused) as u64,
+            last: work,
+            ..activity.clone()
+        };
+        state.core = Some(core);
+        for (path, ms) in [
+            (&DIAGNOSTIC_UPDATE_ELEMENTS, times.update_elements_ms),
+            (&DIAGNOSTIC_LINKS, times.create_links_ms),
+            (&DIAGNOSTIC_REFINE_PUSH, times.refine_push_ms),
+            (&DIAGNOSTIC_ILLUMINATION, times.illumination_ms),
+        ] {
+            // Only the stages this solve ran (a stage that did not run leaves 0).
+            if ms > 0.0 {
+                diagnostics.add_measurement(path, || ms as f64);
+            }
+        }
+        if work != RadiosityWork::Reused {
+            // Blend from what is on screen when the elements are the same ones; otherwise show it whole.
+            let from = state.shown.as_ref().filter(|s| s.to.len() == gathered.len()).map(|s| s.current());
+            let blend = if from.is_some() { Blend::start() } else { Blend::DONE };
+            let from = from.unwrap_or_else(|| gathered.clone());
+            state.shown = Some(Shown { from, to: gathered, blend, vertices, indices, instances, drawn: None });
+        }
+    }
+
+    // 2. The scene or the settings changed since the last solve began: start the next one.
+    if state.job.wants(&key) {
+        let mut core = state.core.take().unwrap_or_default();
+        let snapshot = snapshot.clone();
+        let solve_key = key.clone();
+        state.job.start(key.clone(), move || {
+            let (work, times, gathered) = solve(&mut core, &snapshot, &solve_key);
+            let elements = &core.solver.elements;
+            let vertices = elements.vertices.clone();
+            let indices = Arc::new(elements.triangles.iter().flatten().copied().collect());
+            let instances = core.instances.iter().map(|(key, _, transform, range)| (*key, *transform, range.clone())).collect();
+            Solution { core, work, times, gathered, vertices, indices, instances }
+        });
+        activity.frames_since_start = 0;
+    } else {
+        activity.frames_since_start += 1;
+    }
+
+    // 3. Draw the shown solution when it, the intensity or an instance's transform changed.
+    if let Some(shown) = &mut state.shown {
+        let weight = shown.blend.advance();
+        let drawn = Some((snapshot.geometry_generation, settings.intensity.to_bits()));
+        if weight.is_some() || shown.drawn != drawn {
+            shown.follow(&snapshot);
+            shown.drawn = drawn;
+            let scale = settings.intensity / std::f32::consts::PI;
+            let vertices = shown
+                .current()
+                .into_iter()
+                .zip(&shown.vertices)
+                .map(|(irradiance, position)| RadiosityVertex {
+                    position: position.extend(1.0),
+                    irradiance: (irradiance * scale).extend(0.0),
+                })
+                .collect();
+            let generation = output.generation + 1;
+            *output = RadiosityOutput { generation, vertices: Arc::new(vertices), indices: shown.indices.clone() };
+        }
+    }
+    activity.busy = state.job.is_running() || !state.job.is_current(&key) || state.shown.as_ref().is_some_and(|s| !s.blend.is_done());
+    cost.radiosity_ms = frame_start.elapsed().as_secs_f32() * 1e3;
+}
+
+impl Shown {
+    /// The irradiance per element on screen now.
+    fn current(&self) -> Vec<Vec3> {
+        let t = self.blend.weight();
+        if t >= 1.0 {
+            return self.to.clone();
+        }
+        self.from.iter().zip(&self.to).map(|(a, b)| a.lerp(*b, t)).collect()
+    }
+
+    /// Moves the drawn elements of instances whose transform changed since they were solved, so that the
+    /// light drawn on a moving mesh stays on it until the next solution arrives: O(the moved elements).
+    fn follow(&mut self, snapshot: &SceneSnapshot) {
+        for (key, solved, range) in &mut self.instances {
+            let Some(instance) = snapshot.instance(*key) else {
+                continue;
+            };
+            let now = instance.world_from_local();
+            if now == *solved {
+                continue;
+            }
+            let change = now * solved.inverse();
+            if !change.is_finite() {
+                continue;
+            }
+            for v in &mut self.vertices[range.clone()] {
+                *v = change.transform_point3(*v);
+            }
+            *solved = now;
+        }
+    }
+}
+
+/// One solve, on a background task: elements, links and lighting, each only when what it depends on
+/// changed since `core` last solved. Returns what it redid, the stage times and the gathered irradiance
+/// per element (empty when nothing was redone).
+fn solve(core: &mut RadiosityCore, snapshot: &SceneSnapshot, key: &SolveKey) -> (RadiosityWork, StageTimes, Vec<Vec3>) {
+    let settings = &key.settings;
+    let exposure = f32::from_bits(key.exposure);
+    let params = settings.params();
     let diagonal = snapshot.bounds().map_or(1.0, |(lo, hi)| (hi - lo).length()).max(1e-6);
     let mut work = RadiosityWork::Reused;
     let mut times = StageTimes::default();
 
     // 1. Elements: rebuilt on a new layout or element size, moved with instances otherwise.
-    let elements_key = Some((snapshot.layout_generation, settings.element_size.to_bits(), exposure.to_bits()));
-    let moved = state.links_key.is_none_or(|k| k.0 != snapshot.geometry_generation);
-    if state.elements_key != elements_key || (moved && !move_instances(state, &snapshot)) {
+    let elements_key = Some((snapshot.layout_generation, settings.element_size.to_bits(), key.exposure));
+    let moved = core.links_key.is_none_or(|k| k.0 != snapshot.geometry_generation);
+    if core.elements_key != elements_key || (moved && !move_instances(core, snapshot)) {
         let start = std::time::Instant::now();
         // The cached elements were cut at another size or carry another exposure's emission.
-        let made_as = (settings.element_size.to_bits(), exposure.to_bits());
-        if state.elements_key.is_none_or(|k| (k.1, k.2) != made_as) {
-            state.cache.clear();
+        let made_as = (settings.element_size.to_bits(), key.exposure);
+        if core.elements_key.is_none_or(|k| (k.1, k.2) != made_as) {
+            core.cache.clear();
         }
         // Only the instances that changed are re-made (a deforming mesh costs its own elements).
         let max_edge = settings.element_size * diagonal;
-        let cache = &state.cache;
+        let cache = &core.cache;
         let per_instance: Vec<(u64, u64, Arc<Elements>)> = snapshot
             .instances()
             .par_iter()
             .map(|instance| {
                 let reuse = cache.get(&instance.key).filter(|(version, _)| *version == instance.version);
-                let elements = reuse.map_or_else(|| Arc::new(instance_elements(&snapshot, instance, exposure, max_edge)), |(_, e)| e.clone());
+                let elements = reuse.map_or_else(|| Arc::new(instance_elements(snapshot, instance, exposure, max_edge)), |(_, e)| e.clone());
                 (instance.key, instance.version, elements)
             })
             .collect();
         let mut elements = Elements::default();
-        state.instances.clear();
-        state.cache.clear();
+        core.instances.clear();
+        core.cache.clear();
         for ((key, version, part), instance) in per_instance.into_iter().zip(snapshot.instances()) {
             let first = elements.len();
             elements.append(&part);
-            state.instances.push((key, version, instance.world_from_local(), first..elements.len()));
-            state.cache.insert(key, (version, part));
+            core.instances.push((key, version, instance.world_from_local(), first..elements.len()));
+            core.cache.insert(key, (version, part));
         }
-        state.solver = RadiositySolver::new(elements);
-        state.elements_key = elements_key;
-        state.links_key = None;
+        core.solver = RadiositySolver::new(elements);
+        core.elements_key = elements_key;
+        core.links_key = None;
         times.update_elements_ms = start.elapsed().as_secs_f32() * 1e3;
         work = RadiosityWork::Rebuild;
     } else if moved {
         let start = std::time::Instant::now();
-        state.solver.hierarchy.refit(&state.solver.elements);
+        core.solver.hierarchy.refit(&core.solver.elements);
         times.update_elements_ms = start.elapsed().as_secs_f32() * 1e3;
         work = RadiosityWork::Refit;
     }
 
     // 2. Links, whenever any geometry changed.
     let links_key = Some((snapshot.geometry_generation, settings.bins, settings.subdivision_threshold.to_bits()));
-    if state.links_key != links_key {
-        state.solver.create_links(&params);
-        state.solver.refine_and_push();
-        times.create_links_ms = state.solver.times.create_links_ms;
-        times.refine_push_ms = state.solver.times.refine_push_ms;
-        times.links = state.solver.times.links;
-        state.links_key = links_key;
-        state.lighting_key = None;
+    if core.links_key != links_key {
+        core.solver.create_links(&params);
+        core.solver.refine_and_push();
+        times.create_links_ms = core.solver.times.create_links_ms;
+        times.refine_push_ms = core.solver.times.refine_push_ms;
+        times.links = core.solver.times.links;
+        core.links_key = links_key;
+        core.lighting_key = None;
         if work == RadiosityWork::Reused {
             work = RadiosityWork::Refit;
         }
     }
 
     // 3. Lighting.
-    let mut lights: Vec<Entity> = gi_lights.iter().collect();
-    lights.sort();
-    let lighting_key = Some(LightingKey {
-        geometry: snapshot.geometry_generation,
-        lights: snapshot.light_generation,
-        gi_lights: lights,
-        exposure: exposure.to_bits(),
-        environment: snapshot.environment_generation,
-        settings: settings.clone(),
-    });
-    if state.lighting_key == lighting_key {
-        activity.last = RadiosityWork::Reused;
-        return;
+    if core.lighting_key.as_ref() == Some(key) {
+        return (work, times, Vec::new());
     }
     let start = std::time::Instant::now();
-    state.solver.environment = match (snapshot.environment.as_deref(), state.solver.bins.as_ref()) {
+    core.solver.environment = match (snapshot.environment.as_deref(), core.solver.bins.as_ref()) {
         // The camera's environment map (plus the constant sky), averaged over each world-aligned bin
         // with about two samples per environment texel across a bin.
         (Some(environment), Some(bins)) => {
@@ -563,57 +739,27 @@ fn update_radiosity(
         }
         _ => Vec::new(),
     };
-    let direct = direct_irradiance(&snapshot, &state.solver.elements, &lighting_key.as_ref().unwrap().gi_lights);
-    state.solver.illuminate(&direct, &params);
+    let direct = direct_irradiance(snapshot, &core.solver.elements, &key.gi_lights);
+    core.solver.illuminate(&direct, &params);
     times.illumination_ms = start.elapsed().as_secs_f32() * 1e3;
-    times.bounces_run = state.solver.times.bounces_run;
-    state.lighting_key = lighting_key;
+    times.bounces_run = core.solver.times.bounces_run;
+    core.lighting_key = Some(key.clone());
     if work == RadiosityWork::Reused {
         work = RadiosityWork::Illumination;
     }
-
-    let elements = &state.solver.elements;
-    let scale = settings.intensity / std::f32::consts::PI;
-    let vertices = (0..elements.len())
-        .map(|e| RadiosityVertex {
-            position: elements.vertices[e].extend(1.0),
-            irradiance: (state.solver.gathered[e] * scale).extend(0.0),
-        })
-        .collect();
-    let indices = elements.triangles.iter().flatten().copied().collect();
-    let generation = output.generation + 1;
-    *output = RadiosityOutput { generation, vertices: Arc::new(vertices), indices: Arc::new(indices) };
-    cost.radiosity_ms = frame_start.elapsed().as_secs_f32() * 1e3;
-    for (path, ms) in [
-        (&DIAGNOSTIC_UPDATE_ELEMENTS, times.update_elements_ms),
-        (&DIAGNOSTIC_LINKS, times.create_links_ms),
-        (&DIAGNOSTIC_REFINE_PUSH, times.refine_push_ms),
-        (&DIAGNOSTIC_ILLUMINATION, times.illumination_ms),
-    ] {
-        // Only the stages this solve ran (a stage that did not run leaves 0).
-        if ms > 0.0 {
-            diagnostics.add_measurement(path, || ms as f64);
-        }
-    }
-    *activity = RadiosityActivity {
-        elements: elements.len(),
-        nodes: state.solver.hierarchy.nodes.len(),
-        times,
-        solves: activity.solves + 1,
-        last: work,
-    };
+    (work, times, core.solver.gathered.clone())
 }
 
 /// Moves the elements of instances whose transform changed (same instances, same meshes) by the
 /// change of their transform. Returns `false` when the snapshot's instances are not those the elements
 /// were made from (then everything is rebuilt).
-fn move_instances(state: &mut RadiosityState, snapshot: &SceneSnapshot) -> bool {
+fn move_instances(core: &mut RadiosityCore, snapshot: &SceneSnapshot) -> bool {
     let instances = snapshot.instances();
-    if instances.len() != state.instances.len() {
+    if instances.len() != core.instances.len() {
         return false;
     }
-    let elements = &mut state.solver.elements;
-    for (instance, (key, version, transform, range)) in instances.iter().zip(state.instances.iter_mut()) {
+    let elements = &mut core.solver.elements;
+    for (instance, (key, version, transform, range)) in instances.iter().zip(core.instances.iter_mut()) {
         if instance.key != *key {
             return false;
         }

@@ -411,11 +411,12 @@ pub fn radiosity_ui(ui: &mut egui::Ui, settings: &mut Mut<RadiositySettings>) {
 /// What the last radiosity solve did: its elements and the paper's Table 1 stages.
 fn radiosity_activity_ui(ui: &mut egui::Ui, a: &RadiosityActivity) {
     let t = &a.times;
-    ui.label(format!("{} elements, {} nodes, {} links; last frame: {:?}", a.elements, a.nodes, t.links, a.last));
+    ui.label(format!("{} elements, {} nodes, {} links; last solve: {:?}", a.elements, a.nodes, t.links, a.last));
     ui.label(format!(
-        "update {:.1} ms, links {:.1} ms, refine+push {:.1} ms, illumination {:.1} ms ({} bounces)",
+        "in the background: update {:.1} ms, links {:.1} ms, refine+push {:.1} ms, illumination {:.1} ms ({} bounces)",
         t.update_elements_ms, t.create_links_ms, t.refine_push_ms, t.illumination_ms, t.bounces_run
     ));
+    ui.label(background_line(a.busy, a.frames_since_start, a.solves));
 }
 
 /// The widgets of a camera's [`PhotonGridSettings`]; each range is the field's valid range. ASCII
@@ -450,9 +451,19 @@ fn photon_grid_activity_ui(ui: &mut egui::Ui, a: &PhotonGridActivity) {
         a.dims.x, a.dims.y, a.dims.z, a.boundary_sh_cells, a.boundary_v_cells, a.probes, a.inside, a.photons
     ));
     ui.label(format!(
-        "voxelize {:.1} ms, photons {:.1} ms, R-grid {:.1} ms, SH field {:.1} ms ({} updates)",
-        t.voxelize_ms, t.trace_ms, t.rgrid_ms, t.field_ms, a.updates
+        "in the background: voxelize {:.1} ms, photons {:.1} ms, R-grid {:.1} ms, SH field {:.1} ms",
+        t.voxelize_ms, t.trace_ms, t.rgrid_ms, t.field_ms
     ));
+    ui.label(background_line(a.busy, a.frames_since_start, a.updates));
+}
+
+/// Where a CPU method's background work stands.
+fn background_line(busy: bool, frames_since_start: u32, done: u64) -> String {
+    if busy {
+        format!("updating in the background ({frames_since_start} frames since the last start); {done} done")
+    } else {
+        format!("current ({done} done in the background)")
+    }
 }
 
 fn volume_ui(ui: &mut egui::Ui, label: &str, volume: &mut Mut<RadianceHintsVolume>, transform: &GlobalTransform) {
