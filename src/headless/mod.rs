@@ -54,6 +54,9 @@ const MAX_LOADING_FRAMES: u32 = 2000;
 pub const SETTLE_READBACKS: usize = 3;
 /// ...or after this many frames, whichever comes first (a camera may legitimately see nothing).
 pub const MAX_SETTLE_FRAMES: u32 = 600;
+/// Longest wait, in seconds, for the CPU methods' background work on the still scene before the
+/// measured frames begin.
+pub const MAX_BACKGROUND_SECONDS: u64 = 600;
 
 /// What one headless run produced.
 #[derive(Clone, Debug)]
@@ -127,6 +130,10 @@ struct Headless {
     spawned_rh: Option<(RadianceHintsVolume, Transform)>,
     /// Main-thread milliseconds of the plugin's CPU work, per rendered frame.
     main_thread_ms: Vec<f32>,
+    /// `wait_background`: frames in a row with no background work, and frames rendered after the
+    /// `frames` while it caught up.
+    background_idle: u32,
+    background_wait_frames: u32,
 }
 
 /// Renders as `options` say and returns the images and the sidecar, without writing anything.
@@ -285,6 +292,8 @@ fn build_app(options: &HeadlessOptions, outcome: Arc<Mutex<Outcome>>) -> App {
         frame_starts: Vec::new(),
         spawned_rh: None,
         main_thread_ms: Vec::new(),
+        background_idle: 0,
+        background_wait_frames: 0,
     })
     .add_systems(Startup, setup)
     .add_systems(Update, (attach_camera, spawn_rh_volume, animate_lights, switch_method, drive).chain())
@@ -445,7 +454,11 @@ fn drive(
             let settled = recent.len() == SETTLE_READBACKS && recent[0] > 0 && recent.iter().all(|c| *c == recent[0]);
             let received = frames.received;
             drop(frames);
-            if settled || headless.phase_frames > MAX_SETTLE_FRAMES {
+            // The CPU methods work in the background: a still frame is measured once their solution of
+            // the scene as it is (still) has arrived and been blended in.
+            let waited = headless.render_start.is_some_and(|s| s.elapsed() > Duration::from_secs(MAX_BACKGROUND_SECONDS));
+            let background_done = !(radiosity.busy || photon_grid.busy) || waited;
+            if (settled || headless.phase_frames > MAX_SETTLE_FRAMES) && background_done {
                 headless.phase = Phase::Rendering;
                 headless.phase_frames = 0;
                 headless.receipts_at_render = received;
@@ -491,8 +504,21 @@ fn drive(
                 return;
             }
             headless.frame_starts.push(Instant::now());
+            // With `wait_background`, the CPU methods' work must have caught up too, for as many
+            // readbacks as a settled image needs.
+            let background_busy = radiosity.busy || photon_grid.busy;
+            let received = headless.frames.lock().expect("frames lock").received;
+            let counted = received >= headless.receipts_at_render + headless.options.frames;
+            if counted && headless.options.wait_background {
+                headless.background_idle = if background_busy { 0 } else { headless.background_idle + 1 };
+                let waited = headless.render_start.is_some_and(|s| s.elapsed() > Duration::from_secs(MAX_BACKGROUND_SECONDS));
+                if headless.background_idle <= SETTLE_READBACKS as u32 && !waited {
+                    headless.background_wait_frames += 1;
+                    return;
+                }
+            }
             let mut frames = headless.frames.lock().expect("frames lock");
-            if frames.received < headless.receipts_at_render + headless.options.frames {
+            if !counted {
                 drop(frames);
                 if headless.render_start.is_some_and(|s| s.elapsed() > Duration::from_secs(600)) {
                     finish(&mut headless, &mut exit, Some("rendering did not finish within 600 s".into()));
@@ -521,13 +547,16 @@ fn drive(
                 headless.frame_starts.windows(2).map(|w| (w[1] - w[0]).as_secs_f64() * 1e3).collect();
             map.insert("frame_ms".into(), json!(intervals));
             map.insert("main_thread_ms".into(), json!(headless.main_thread_ms));
+            if headless.options.wait_background {
+                map.insert("background_wait_frames".into(), json!(headless.background_wait_frames));
+            }
             if headless.options.method == HeadlessMethod::Gi(crate::camera::GiMethod::Radiosity) {
                 let t = &radiosity.times;
                 map.insert(
                     "radiosity".into(),
                     json!({ "elements": radiosity.elements, "nodes": radiosity.nodes, "links": t.links,
                             "last_work": format!("{:?}", radiosity.last),
-                            "solves": radiosity.solves, "bounces_run": t.bounces_run,
+                            "solves": radiosity.solves, "bounces_run": t.bounces_run, "busy": radiosity.busy,
                             "update_elements_ms": t.update_elements_ms, "create_links_ms": t.create_links_ms,
                             "refine_push_ms": t.refine_push_ms, "illumination_ms": t.illumination_ms }),
                 );
@@ -538,7 +567,7 @@ fn drive(
                     "photon_grid".into(),
                     json!({ "dims": [a.dims.x, a.dims.y, a.dims.z], "boundary_sh_cells": a.boundary_sh_cells,
                             "boundary_v_cells": a.boundary_v_cells, "probes": a.probes, "probes_inside": a.inside,
-                            "photons_stored": a.photons, "paths": a.stats.paths, "updates": a.updates,
+                            "photons_stored": a.photons, "paths": a.stats.paths, "updates": a.updates, "busy": a.busy,
                             "voxelize_ms": t.voxelize_ms, "trace_ms": t.trace_ms, "rgrid_ms": t.rgrid_ms,
                             "field_ms": t.field_ms }),
                 );

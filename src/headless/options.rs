@@ -140,6 +140,11 @@ pub struct HeadlessOptions {
     pub stop_animation_at: Option<f32>,
     /// `dynamic` scene: static triangles added along the back wall.
     pub extra_triangles: u32,
+    /// After the `frames`, go on rendering until the CPU methods' background work (radiosity's solve,
+    /// the photon grid's preparation) has caught up with the scene and been blended in, and read back
+    /// then: the converged image after a change. The extra frames are the sidecar's
+    /// `background_wait_frames`.
+    pub wait_background: bool,
     /// GI methods: after this many frames of the `--frames`, switch the camera to another method (the
     /// run-time switch a game makes from its settings menu). The new method's settings come from the
     /// same `--preset` and overrides.
@@ -178,6 +183,7 @@ impl Default for HeadlessOptions {
             pose_frame: 0.0,
             stop_animation_at: None,
             extra_triangles: 0,
+            wait_background: false,
             switch_method: None,
         }
     }
@@ -263,6 +269,10 @@ pub struct HeadlessArgs {
     /// dynamic scene: add about N static triangles (spheres along the back wall), 0..=5000000
     #[arg(long, value_name = "N", default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=5_000_000))]
     pub extra_triangles: u32,
+    /// After the --frames, go on rendering until the CPU methods (radiosity, photon grid) have finished
+    /// their background work on the scene as it is, then read back (at most 600 s more)
+    #[arg(long)]
+    pub wait_background: bool,
     /// After FRAMES of the --frames, switch the camera to the given GI method (rh, vpl, rsm, drm,
     /// radiosity or photon-grid)
     #[arg(long, value_name = "FRAMES:METHOD", value_parser = parse_switch)]
@@ -607,6 +617,7 @@ impl HeadlessArgs {
             pose_frame: self.pose_frame,
             stop_animation_at: self.stop_animation_at,
             extra_triangles: self.extra_triangles,
+            wait_background: self.wait_background,
             switch_method: self.switch_method,
             ..HeadlessOptions::default()
         };
