@@ -298,11 +298,17 @@ fn ci_capture(
     mut cameras: Query<&mut bevy_diffuse_gi::camera::DiffuseGi>,
     mut step: MessageWriter<CiStep>,
     mut exit: MessageWriter<AppExit>,
+    radiosity: Option<Res<bevy_diffuse_gi::radiosity::RadiosityActivity>>,
+    photon_grid: Option<Res<bevy_diffuse_gi::photon_grid::PhotonGridActivity>>,
 ) {
     use bevy::render::view::screenshot::{Screenshot, save_to_disk};
     let mut labels = steps.map_or_else(|| vec!["gi".to_string()], |s| s.0.clone());
     labels.truncate(capture.max_steps);
-    if !ready.0.load(std::sync::atomic::Ordering::Relaxed) {
+    // A CPU method whose first background solve has not arrived yet draws no bounced light: like a
+    // compiling pipeline, the frame does not count. (Later solves do not hold the count: an example
+    // that moves something keeps them running.)
+    let first_solve_pending = radiosity.is_some_and(|a| a.busy && !a.ready) || photon_grid.is_some_and(|a| a.busy && !a.ready);
+    if !ready.0.load(std::sync::atomic::Ordering::Relaxed) || first_solve_pending {
         // A pipeline still compiling: this frame does not count (at most 6000 in a row).
         capture.waited += 1;
         if capture.waited > 6000 {

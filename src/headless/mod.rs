@@ -134,6 +134,7 @@ struct Headless {
     /// `frames` while it caught up.
     background_idle: u32,
     background_wait_frames: u32,
+    background_timed_out: bool,
 }
 
 /// Renders as `options` say and returns the images and the sidecar, without writing anything.
@@ -294,6 +295,7 @@ fn build_app(options: &HeadlessOptions, outcome: Arc<Mutex<Outcome>>) -> App {
         main_thread_ms: Vec::new(),
         background_idle: 0,
         background_wait_frames: 0,
+        background_timed_out: false,
     })
     .add_systems(Startup, setup)
     .add_systems(Update, (attach_camera, spawn_rh_volume, animate_lights, switch_method, drive).chain())
@@ -509,9 +511,10 @@ fn drive(
             let background_busy = radiosity.busy || photon_grid.busy;
             let received = headless.frames.lock().expect("frames lock").received;
             let counted = received >= headless.receipts_at_render + headless.options.frames;
-            if counted && headless.options.wait_background {
+            if let Some(limit) = headless.options.wait_background.filter(|_| counted) {
                 headless.background_idle = if background_busy { 0 } else { headless.background_idle + 1 };
-                let waited = headless.render_start.is_some_and(|s| s.elapsed() > Duration::from_secs(MAX_BACKGROUND_SECONDS));
+                let waited = headless.render_start.is_some_and(|s| s.elapsed() > Duration::from_secs(limit as u64));
+                headless.background_timed_out = waited && background_busy;
                 if headless.background_idle <= SETTLE_READBACKS as u32 && !waited {
                     headless.background_wait_frames += 1;
                     return;
@@ -547,8 +550,9 @@ fn drive(
                 headless.frame_starts.windows(2).map(|w| (w[1] - w[0]).as_secs_f64() * 1e3).collect();
             map.insert("frame_ms".into(), json!(intervals));
             map.insert("main_thread_ms".into(), json!(headless.main_thread_ms));
-            if headless.options.wait_background {
+            if headless.options.wait_background.is_some() {
                 map.insert("background_wait_frames".into(), json!(headless.background_wait_frames));
+                map.insert("background_timed_out".into(), json!(headless.background_timed_out));
             }
             if headless.options.method == HeadlessMethod::Gi(crate::camera::GiMethod::Radiosity) {
                 let t = &radiosity.times;

@@ -141,10 +141,11 @@ pub struct HeadlessOptions {
     /// `dynamic` scene: static triangles added along the back wall.
     pub extra_triangles: u32,
     /// After the `frames`, go on rendering until the CPU methods' background work (radiosity's solve,
-    /// the photon grid's preparation) has caught up with the scene and been blended in, and read back
-    /// then: the converged image after a change. The extra frames are the sidecar's
-    /// `background_wait_frames`.
-    pub wait_background: bool,
+    /// the photon grid's preparation) has caught up with the scene and been blended in, for at most
+    /// this many seconds from the start of rendering, and read back then: the converged image after a
+    /// change. The extra frames are the sidecar's `background_wait_frames`; `background_timed_out` says
+    /// whether the limit ended the wait.
+    pub wait_background: Option<u32>,
     /// GI methods: after this many frames of the `--frames`, switch the camera to another method (the
     /// run-time switch a game makes from its settings menu). The new method's settings come from the
     /// same `--preset` and overrides.
@@ -183,7 +184,7 @@ impl Default for HeadlessOptions {
             pose_frame: 0.0,
             stop_animation_at: None,
             extra_triangles: 0,
-            wait_background: false,
+            wait_background: None,
             switch_method: None,
         }
     }
@@ -270,9 +271,10 @@ pub struct HeadlessArgs {
     #[arg(long, value_name = "N", default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=5_000_000))]
     pub extra_triangles: u32,
     /// After the --frames, go on rendering until the CPU methods (radiosity, photon grid) have finished
-    /// their background work on the scene as it is, then read back (at most 600 s more)
-    #[arg(long)]
-    pub wait_background: bool,
+    /// their background work on the scene as it is, then read back; at most SECONDS from the start of
+    /// rendering, 1..=3600
+    #[arg(long, value_name = "SECONDS", value_parser = clap::value_parser!(u32).range(1..=3600))]
+    pub wait_background: Option<u32>,
     /// After FRAMES of the --frames, switch the camera to the given GI method (rh, vpl, rsm, drm,
     /// radiosity or photon-grid)
     #[arg(long, value_name = "FRAMES:METHOD", value_parser = parse_switch)]

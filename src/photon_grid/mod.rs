@@ -302,6 +302,9 @@ pub struct PhotonGridActivity {
     /// Whether the field shown is not yet the one of the scene as it is now: a preparation is running
     /// or due, or a new field is still being blended in.
     pub busy: bool,
+    /// Whether a result is drawn: false from the method's activation until its first background
+    /// result arrives (the frame shows no bounced light from it until then).
+    pub ready: bool,
     /// Frames since the last preparation was started from the scene as it was then.
     pub frames_since_start: u32,
 }
@@ -447,7 +450,7 @@ fn update_photon_grid(
             (state.core, state.shown) = (None, None);
             let generation = output.generation + 1;
             *output = PhotonGridOutput { generation, ..default() };
-            activity.busy = false;
+            (activity.busy, activity.ready) = (false, false);
         }
         return;
     };
@@ -531,6 +534,7 @@ fn update_photon_grid(
         }
     }
     activity.busy = state.job.is_running() || !state.job.is_current(&key) || state.shown.as_ref().is_some_and(|s| !s.blend.is_done());
+    activity.ready = state.shown.is_some();
     cost.photon_grid_ms = frame_start.elapsed().as_secs_f32() * 1e3;
 }
 

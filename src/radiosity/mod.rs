@@ -299,6 +299,9 @@ pub struct RadiosityActivity {
     /// Whether the light shown is not yet the solution of the scene as it is now: a solve is running
     /// or due, or a new solution is still being blended in.
     pub busy: bool,
+    /// Whether a result is drawn: false from the method's activation until its first background
+    /// result arrives (the frame shows no bounced light from it until then).
+    pub ready: bool,
     /// Frames since the last solve was started from the scene as it was then (0 while none ran).
     pub frames_since_start: u32,
 }
@@ -526,7 +529,7 @@ fn update_radiosity(
             (state.core, state.shown) = (None, None);
             let generation = output.generation + 1;
             *output = RadiosityOutput { generation, ..default() };
-            activity.busy = false;
+            (activity.busy, activity.ready) = (false, false);
         }
         return;
     };
@@ -620,6 +623,7 @@ fn update_radiosity(
         }
     }
     activity.busy = state.job.is_running() || !state.job.is_current(&key) || state.shown.as_ref().is_some_and(|s| !s.blend.is_done());
+    activity.ready = state.shown.is_some();
     cost.radiosity_ms = frame_start.elapsed().as_secs_f32() * 1e3;
 }
 
