@@ -99,3 +99,51 @@ fn a_sky_through_a_roof_opening_lights_the_room() {
     // Measured: none (21, in rows along the junctions, without the gather's V-grid march).
     check(test, found.is_empty(), &image, Some(&truth), format!("{} outlier pixels, e.g. {:?}", found.len(), &found[..found.len().min(8)]));
 }
+
+/// Doubles the intensity and changes the other gather-only settings of every photon-grid camera at
+/// rendering frame 2.
+fn change_gather_settings(clock: bevy::prelude::Res<bevy_diffuse_gi::headless::HeadlessClock>, mut cameras: bevy::prelude::Query<&mut PhotonGridSettings>) {
+    if clock.rendering && clock.frame == 2 {
+        for mut settings in &mut cameras {
+            settings.intensity *= 2.0;
+            settings.r_max = 2.0;
+            settings.gather_samples = 16;
+        }
+    }
+}
+
+#[test]
+fn a_gather_only_setting_does_not_rerun_the_preparation() {
+    let test = "photon_grid_gather_only_setting";
+    let options = HeadlessOptions {
+        scene: StandardScene::Cornell,
+        method: HeadlessMethod::Gi(GiMethod::PhotonGrid),
+        indirect_only: true,
+        size: bevy::math::UVec2::splat(96),
+        frames: 8,
+        photon_grid: PhotonGridSettings::LOW,
+        ..Default::default()
+    };
+    let once = render(&options);
+    let changed = {
+        let _guard = common::render_lock();
+        bevy_diffuse_gi::headless::run_with(&options, |app| {
+            app.add_systems(bevy::prelude::Update, change_gather_settings);
+        })
+        .unwrap_or_else(|e| panic!("headless render failed: {e}"))
+    };
+    let updates = |r: &bevy_diffuse_gi::headless::HeadlessReport| r.sidecar["photon_grid"]["updates"].as_u64();
+    eprintln!("{test}: updates {:?} then {:?}", updates(&once), updates(&changed));
+    check(test, updates(&once) == Some(1), &once.image, None, format!("a still scene prepared {:?} times", updates(&once)));
+    check(
+        test,
+        updates(&changed) == Some(1),
+        &changed.image,
+        None,
+        format!("intensity, r_max and gather_samples reran the preparation: {:?} updates", updates(&changed)),
+    );
+    // The change reached the image: twice the intensity, about twice the light.
+    let energy = |i: &HdrImage| i.pixels.iter().map(|p| (p[0] + p[1] + p[2]) as f64).sum::<f64>();
+    let ratio = energy(&changed.image) / energy(&once.image).max(1e-12);
+    check(test, (1.7..2.3).contains(&ratio), &changed.image, Some(&once.image), format!("light scaled by {ratio:.3}, not about 2"));
+}

@@ -1,0 +1,135 @@
+//! Every method keeps up with a moving mesh without stalling the frame (issue #30), on lavapipe in CI.
+//!
+//! For each of the six methods, object 0 of the `dynamic` scene (a sphere) moves every frame for
+//! [`MOVING_FRAMES`] frames and stops; the run renders [`AFTER_STOP`] more frames and, for the CPU
+//! methods, goes on until their background work on the final pose has been blended in
+//! (`wait_background`, at most [`WAIT_BACKGROUND_S`]). Asserted:
+//! * no frame's main-thread cost (the plugin's [`MainThreadCost`](bevy_diffuse_gi::MainThreadCost))
+//!   exceeds [`MAX_MAIN_THREAD_MS`] — before issue #30, radiosity paid 8 400 ms and the photon grid
+//!   1 600 ms per frame here;
+//! * the light followed the sphere: the image after the stop is the still render of the final pose,
+//!   not of the pose it left (block RMSE to the final pose's still image at most a third of the first
+//!   pose's, and under an absolute bound);
+//! * nothing non-finite.
+#![cfg(feature = "gpu_tests")]
+
+mod common;
+
+use bevy::prelude::*;
+use bevy_diffuse_gi::camera::GiMethod;
+use bevy_diffuse_gi::headless::{HeadlessMethod, HeadlessOptions, HeadlessReport};
+use bevy_diffuse_gi::metrics;
+use bevy_diffuse_gi::photon_grid::PhotonGridSettings;
+use bevy_diffuse_gi::radiosity::RadiositySettings;
+use bevy_diffuse_gi::scenes::StandardScene;
+use common::{check, render};
+
+/// Frames the sphere moves.
+const MOVING_FRAMES: f32 = 60.0;
+/// Frames rendered after it stops: Radiance Hints refines its volume over up to 32 frames after a
+/// change; the screen-space methods follow within a frame; the CPU methods wait for their background
+/// work besides (`wait_background`, at most [`WAIT_BACKGROUND_S`]).
+const AFTER_STOP: u32 = 40;
+/// The longest the CPU methods' background work may take to catch up with the final pose, seconds
+/// from the start of rendering (their low presets take about a second per solve here).
+const WAIT_BACKGROUND_S: u32 = 120;
+/// The most main-thread milliseconds any frame may cost the plugin (the issue's bound).
+const MAX_MAIN_THREAD_MS: f64 = 20.0;
+
+/// The `dynamic` scene from `pose`, the sphere moving until pose `stop`.
+fn options(method: GiMethod, pose: f32, stop: f32, frames: u32) -> HeadlessOptions {
+    HeadlessOptions {
+        scene: StandardScene::Dynamic,
+        method: HeadlessMethod::Gi(method),
+        indirect_only: true,
+        size: UVec2::splat(64),
+        frames,
+        animate_meshes: 1,
+        pose_frame: pose,
+        stop_animation_at: Some(stop),
+        wait_background: Some(WAIT_BACKGROUND_S),
+        // The CPU methods' low presets keep each background solve short on CI's two cores; what the
+        // main thread pays does not depend on the preset.
+        radiosity: RadiositySettings::LOW,
+        photon_grid: PhotonGridSettings::LOW,
+        ..Default::default()
+    }
+}
+
+fn main_thread_ms(report: &HeadlessReport) -> Vec<f64> {
+    report.sidecar["main_thread_ms"].as_array().expect("main_thread_ms").iter().filter_map(|v| v.as_f64()).collect()
+}
+
+fn follows_a_moving_mesh(method: GiMethod) {
+    let test = format!("motion_{}", method.name());
+    let moving = render(&options(method, 0.0, MOVING_FRAMES, MOVING_FRAMES as u32 + AFTER_STOP));
+    let at_start = render(&options(method, 0.0, 0.0, AFTER_STOP)).image;
+    let at_end = render(&options(method, MOVING_FRAMES, MOVING_FRAMES, AFTER_STOP)).image;
+    let costs = main_thread_ms(&moving);
+    let worst = costs.iter().copied().fold(0.0, f64::max);
+    let mut sorted = costs.clone();
+    sorted.sort_by(f64::total_cmp);
+    let median = sorted.get(sorted.len() / 2).copied().unwrap_or(0.0);
+    let followed = metrics::compare(&moving.image, &at_end).expect("same size").block_relative_rmse;
+    let left_behind = metrics::compare(&at_start, &at_end).expect("same size").block_relative_rmse;
+    eprintln!(
+        "{test}: main thread median {median:.2} ms, worst {worst:.2} ms over {} frames; after the stop: {followed:.4} \
+         to the final pose, the first pose {left_behind:.4} from it; background wait {} frames",
+        costs.len(),
+        moving.sidecar["background_wait_frames"]
+    );
+    check(&test, !moving.image.has_non_finite(), &moving.image, None, "NaN or Inf in the image".into());
+    check(
+        &test,
+        moving.sidecar["background_timed_out"] == false,
+        &moving.image,
+        None,
+        format!("the background work did not catch up with the final pose within {WAIT_BACKGROUND_S} s"),
+    );
+    check(&test, costs.len() >= MOVING_FRAMES as usize, &moving.image, None, format!("{} frames measured", costs.len()));
+    check(
+        &test,
+        worst <= MAX_MAIN_THREAD_MS,
+        &moving.image,
+        None,
+        format!("a frame cost the main thread {worst:.1} ms (> {MAX_MAIN_THREAD_MS} ms); per frame: {costs:?}"),
+    );
+    check(&test, left_behind > 0.02, &at_start, Some(&at_end), format!("the move changed the light by only {left_behind:.4}"));
+    check(
+        &test,
+        followed <= left_behind / 3.0 && followed <= 0.15,
+        &moving.image,
+        Some(&at_end),
+        format!("the light did not follow the sphere: {followed:.4} from the final pose's still image (the first pose: {left_behind:.4})"),
+    );
+}
+
+#[test]
+fn radiance_hints_follows_a_moving_mesh_without_stalling() {
+    follows_a_moving_mesh(GiMethod::RadianceHints);
+}
+
+#[test]
+fn vpls_follow_a_moving_mesh_without_stalling() {
+    follows_a_moving_mesh(GiMethod::Vpl);
+}
+
+#[test]
+fn the_rsm_gather_follows_a_moving_mesh_without_stalling() {
+    follows_a_moving_mesh(GiMethod::RsmGather);
+}
+
+#[test]
+fn drm_follows_a_moving_mesh_without_stalling() {
+    follows_a_moving_mesh(GiMethod::Drm);
+}
+
+#[test]
+fn radiosity_follows_a_moving_mesh_without_stalling() {
+    follows_a_moving_mesh(GiMethod::Radiosity);
+}
+
+#[test]
+fn the_photon_grid_follows_a_moving_mesh_without_stalling() {
+    follows_a_moving_mesh(GiMethod::PhotonGrid);
+}
