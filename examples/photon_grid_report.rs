@@ -96,7 +96,7 @@ const PRESETS: [(&str, PhotonGridSettings); 3] = [
 fn accuracy(device: &mut String) -> Result<String, String> {
     let mut out = String::from(
         "Block relative RMSE, per-pixel relative RMSE, energy ratio and the share of 4×4 blocks more than 50 % off,\n\
-         against the full path-traced truth (all bounces), and the preparation's main-thread time.\n\n\
+         against the full path-traced truth (all bounces), and the preparation's time (a background task).\n\n\
          | scene | settings | block RMSE | pixel RMSE | energy | blocks > 50 % off | preparation ms |\n|---|---|---|---|---|---|---|\n",
     );
     let scenes = [
@@ -182,7 +182,7 @@ fn versus(device: &mut String, rounds: usize) -> Result<String, String> {
          lavapipe, lit image), both once the method has settled, and what a change of the scene costs. Radiance Hints\n\
          refines its volume on the GPU over the frames after a change (17 amortised updates; its rows are read after 32\n\
          frames), and its cost per change is the time those frames took beyond as many still frames. The photon grid\n\
-         redoes its preparation on the main thread once per change and only gathers in its frames.\n\n\
+         redoes its preparation in a background task once per change and only gathers in its frames.\n\n\
          | scene | method | block RMSE | pixel RMSE | energy | blocks > 50 % off | frame ms | preparation per change ms |\n\
          |---|---|---|---|---|---|---|---|\n",
     );
