@@ -290,29 +290,42 @@ fn ci_window_size(mut windows: Query<&mut Window, With<bevy::window::PrimaryWind
     }
 }
 
+/// Whether a frame shows what it should: no pipeline waiting to compile, and no CPU method waiting for
+/// its first background solve (it draws no bounced light until then). Later solves do not count: an
+/// example that moves something keeps them running.
+#[derive(bevy::ecs::system::SystemParam)]
+struct CiFrameReady<'w> {
+    pipelines: Res<'w, CiPipelinesReady>,
+    radiosity: Option<Res<'w, bevy_diffuse_gi::radiosity::RadiosityActivity>>,
+    photon_grid: Option<Res<'w, bevy_diffuse_gi::photon_grid::PhotonGridActivity>>,
+}
+
+impl CiFrameReady<'_> {
+    fn get(&self) -> bool {
+        let first_solve_pending = self.radiosity.as_ref().is_some_and(|a| a.busy && !a.ready)
+            || self.photon_grid.as_ref().is_some_and(|a| a.busy && !a.ready);
+        self.pipelines.0.load(std::sync::atomic::Ordering::Relaxed) && !first_solve_pending
+    }
+}
+
 fn ci_capture(
     mut commands: Commands,
     mut capture: ResMut<CiCapture>,
-    ready: Res<CiPipelinesReady>,
+    ready: CiFrameReady,
     steps: Option<Res<CiSteps>>,
     mut cameras: Query<&mut bevy_diffuse_gi::camera::DiffuseGi>,
     mut step: MessageWriter<CiStep>,
     mut exit: MessageWriter<AppExit>,
-    radiosity: Option<Res<bevy_diffuse_gi::radiosity::RadiosityActivity>>,
-    photon_grid: Option<Res<bevy_diffuse_gi::photon_grid::PhotonGridActivity>>,
 ) {
     use bevy::render::view::screenshot::{Screenshot, save_to_disk};
     let mut labels = steps.map_or_else(|| vec!["gi".to_string()], |s| s.0.clone());
     labels.truncate(capture.max_steps);
-    // A CPU method whose first background solve has not arrived yet draws no bounced light: like a
-    // compiling pipeline, the frame does not count. (Later solves do not hold the count: an example
-    // that moves something keeps them running.)
-    let first_solve_pending = radiosity.is_some_and(|a| a.busy && !a.ready) || photon_grid.is_some_and(|a| a.busy && !a.ready);
-    if !ready.0.load(std::sync::atomic::Ordering::Relaxed) || first_solve_pending {
-        // A pipeline still compiling: this frame does not count (at most 6000 in a row).
+    if !ready.get() {
+        // A pipeline still compiling or a first solve pending: this frame does not count (at most 6000
+        // in a row).
         capture.waited += 1;
         if capture.waited > 6000 {
-            error!("pipelines still compiling after {} frames", capture.waited);
+            error!("pipelines still compiling or a first background solve pending after {} frames", capture.waited);
             exit.write(AppExit::error());
         }
         return;
