@@ -4,7 +4,8 @@
 //! ```text
 //! cargo run --release --example dynamic_report -- [--section NAME]... [--rounds N] [--docs docs/dynamic.md]
 //! ```
-//! Sections: `cost` (frame-time ratios to the frame without GI, at 256² and 512²), `triangles` (one moving
+//! Sections: `motion` (all six methods while things move: frame time, hitches, main-thread cost, and
+//! how long the CPU methods' background work takes to catch up), `cost` (frame-time ratios to the frame without GI, at 256² and 512²), `triangles` (one moving
 //! mesh in scenes of 1 k, 50 k and 500 k triangles), `snapshot` (the scene snapshot's main-thread update,
 //! without a renderer), `accuracy` (error while a light and a box move, against the ground truth of each
 //! frame's pose, and the recovery after the motion stops), `stability` (frame-to-frame change). Each prints
@@ -26,7 +27,7 @@ use bevy_diffuse_gi::metrics;
 use bevy_diffuse_gi::scene::{SceneSnapshot, SceneSnapshotPlugin, SnapshotTimings};
 use bevy_diffuse_gi::scenes::StandardScene;
 
-const SECTIONS: &[&str] = &["cost", "triangles", "snapshot", "accuracy", "stability"];
+const SECTIONS: &[&str] = &["motion", "cost", "triangles", "snapshot", "accuracy", "stability"];
 /// Frames of a timed run and the intervals at its end that the medians use.
 const TIMED_RUN: u32 = 24;
 const TIMED_FRAMES: usize = 12;
@@ -40,6 +41,7 @@ fn run() -> Result<(), String> {
     let args = common::start_report("dynamic_report", SECTIONS);
     for section in &args.sections {
         let table = match section.as_str() {
+            "motion" => motion(args.rounds)?,
             "cost" => cost(args.rounds)?,
             "triangles" => triangles(args.rounds)?,
             "snapshot" => snapshot(),
@@ -114,6 +116,81 @@ fn cost(rounds: usize) -> Result<String, String> {
             }
         }
     }
+    Ok(out)
+}
+
+/// Frames of motion in a `motion` run before it stops, and the frames timed at its end.
+const MOTION_FRAMES: u32 = 32;
+const MOTION_TIMED: usize = 24;
+/// The most a `motion` run waits for the CPU methods' background work after the motion stops, seconds.
+const MOTION_WAIT_S: u32 = 300;
+
+/// Every method while something moves in `dynamic` at 256²: the median frame against the frame without
+/// GI of the same round, the worst frame against the median (a hitch), the main thread's median and
+/// worst milliseconds, and for the CPU methods how many frames after the motion stops their background
+/// work took to catch up with the final pose (`--wait-background`).
+fn motion(rounds: usize) -> Result<String, String> {
+    const SIZE: u32 = 256;
+    let cases: [(&str, bool, u32); 3] = [("one mesh moving", false, 1), ("ten meshes moving", false, 10), ("light orbiting", true, 0)];
+    let mut out = String::from(
+        "| method | case | frame × without GI | worst frame × median | main thread median / worst (ms) | frames to catch up after the stop |\n\
+         |---|---|---|---|---|---|\n",
+    );
+    let mut none = Vec::new();
+    let mut rows: Vec<Vec<[f64; 5]>> = vec![Vec::new(); GiMethod::ALL.len() * cases.len()];
+    for _ in 0..rounds {
+        none.push(common::frame_ms(&render(&dynamic(HeadlessMethod::None, SIZE))?, MOTION_TIMED));
+        for (m, method) in GiMethod::ALL.iter().enumerate() {
+            for (c, (_, light, meshes)) in cases.iter().enumerate() {
+                let mut o = dynamic(HeadlessMethod::Gi(*method), SIZE);
+                (o.animate_light, o.animate_meshes) = (*light, *meshes);
+                o.frames = MOTION_FRAMES;
+                o.stop_animation_at = Some(MOTION_FRAMES as f32);
+                o.wait_background = Some(MOTION_WAIT_S);
+                let r = render(&o)?;
+                // The frames of the motion only (the wait after it is not timed).
+                let frames = common::frame_intervals(&r);
+                let moving = &frames[frames.len().min(MOTION_FRAMES as usize).saturating_sub(MOTION_TIMED)..frames.len().min(MOTION_FRAMES as usize)];
+                let main: Vec<f64> =
+                    r.sidecar["main_thread_ms"].as_array().map(|a| a.iter().filter_map(|v| v.as_f64()).collect()).unwrap_or_default();
+                let main = &main[..main.len().min(MOTION_FRAMES as usize)];
+                let wait = r.sidecar["background_wait_frames"].as_f64().unwrap_or(f64::NAN);
+                let caught_up = if r.sidecar["background_timed_out"] == true { f64::INFINITY } else { (wait - headless::SETTLE_READBACKS as f64).max(0.0) };
+                rows[m * cases.len() + c].push([
+                    common::median(moving),
+                    moving.iter().copied().fold(0.0, f64::max),
+                    common::median(main),
+                    main.iter().copied().fold(0.0, f64::max),
+                    caught_up,
+                ]);
+            }
+        }
+    }
+    let base = common::median(&none);
+    for (m, method) in GiMethod::ALL.iter().enumerate() {
+        for (c, (case, ..)) in cases.iter().enumerate() {
+            let row = &rows[m * cases.len() + c];
+            let col = |i: usize| common::median(&row.iter().map(|r| r[i]).collect::<Vec<_>>());
+            let caught_up = match col(4) {
+                f if f.is_infinite() => format!("not within {MOTION_WAIT_S} s"),
+                f => format!("{f:.0}"),
+            };
+            out += &format!(
+                "| {} | {case} | {:.1} | {:.1} | {:.2} / {:.2} | {caught_up} |\n",
+                method.name(),
+                col(0) / base,
+                col(1) / col(0),
+                col(2),
+                col(3)
+            );
+        }
+    }
+    out += &format!(
+        "\nFrame without GI: {base:.0} ms (median of {rounds} run(s)); {MOTION_TIMED} frames of {MOTION_FRAMES} timed while \
+         moving. \"Frames to catch up\" counts the frames after the motion stopped until the CPU methods' background \
+         work had reached the final pose and blended in (0 for the GPU methods, which have none; Radiance Hints' \
+         volume refinement after a change is in the accuracy section's recovery rows).\n"
+    );
     Ok(out)
 }
 
