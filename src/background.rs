@@ -1,7 +1,7 @@
 //! Background work of the CPU methods: nothing they compute on the CPU blocks a frame.
 //!
 //! Radiosity's links and gathering and the photon grid's photons, R-grid and SH field take from tens of
-//! milliseconds to seconds. They run as a task on the crate's own background thread pool over a *copy*
+//! milliseconds to seconds; the VPL walks a few milliseconds, every frame something moves. They run as a task on the crate's own background thread pool over a *copy*
 //! of their inputs (the [`SceneSnapshot`](crate::scene::SceneSnapshot) clones cheaply: geometry and
 //! texels are shared), with the method's persistent state (its elements, links, voxels) moved into the
 //! task and handed back with the result. Each frame the method's main-world system:

@@ -165,7 +165,8 @@ pub struct MainThreadCost {
     pub snapshot_ms: f32,
     /// Re-voxelising Radiance Hints volumes.
     pub voxels_ms: f32,
-    /// Regenerating the VPLs (random walks over the snapshot).
+    /// The VPLs' main-thread part: comparing the walks' inputs, drawing the guides, starting a walk.
+    /// The walks themselves (random walks over the snapshot, the point set) run in the background.
     pub vpl_ms: f32,
     /// Radiosity's main-thread part: polling its background solve, starting the next (a copy of the
     /// snapshot) and writing the drawn vertices while a solution blends in or a mesh moves. The solve

@@ -418,6 +418,7 @@ fn drive(
     snapshot_timings: Res<crate::scene::SnapshotTimings>,
     radiosity: Res<crate::radiosity::RadiosityActivity>,
     photon_grid: Res<crate::photon_grid::PhotonGridActivity>,
+    vpls: Res<crate::vpl::VplSet>,
 ) {
     let finish = |headless: &mut Headless, exit: &mut MessageWriter<AppExit>, error: Option<String>| {
         let failed = error.is_some();
@@ -459,7 +460,7 @@ fn drive(
             // The CPU methods work in the background: a still frame is measured once their solution of
             // the scene as it is (still) has arrived and been blended in.
             let waited = headless.render_start.is_some_and(|s| s.elapsed() > Duration::from_secs(MAX_BACKGROUND_SECONDS));
-            let background_done = !(radiosity.busy || photon_grid.busy) || waited;
+            let background_done = !(radiosity.busy || photon_grid.busy || vpls.busy) || waited;
             if (settled || headless.phase_frames > MAX_SETTLE_FRAMES) && background_done {
                 headless.phase = Phase::Rendering;
                 headless.phase_frames = 0;
@@ -508,7 +509,7 @@ fn drive(
             headless.frame_starts.push(Instant::now());
             // With `wait_background`, the CPU methods' work must have caught up too, for as many
             // readbacks as a settled image needs.
-            let background_busy = radiosity.busy || photon_grid.busy;
+            let background_busy = radiosity.busy || photon_grid.busy || vpls.busy;
             let received = headless.frames.lock().expect("frames lock").received;
             let counted = received >= headless.receipts_at_render + headless.options.frames;
             if let Some(limit) = headless.options.wait_background.filter(|_| counted) {

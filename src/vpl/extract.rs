@@ -10,6 +10,7 @@ use crate::settings::GiSettings;
 use super::generate::{
     EmissionGuide, IsmPoint, PilotHits, Vpl, WalkSettings, automatic_bound, generate_vpls, ism_positions, ism_samples, pilot_hits, surface_area,
 };
+use crate::background::BackgroundJob;
 use crate::camera::{DiffuseGi, GiDebugView, GiMethod};
 use crate::ssbc::SsbcRequest;
 use crate::light::GiLight;
@@ -22,7 +23,9 @@ pub const POINT_RUNS: u32 = 16;
 pub const MAX_POINTS: u32 = 1 << 20;
 
 /// The VPLs and the shadow-map point set, shared by every VPL camera; rebuilt only when the lights, the
-/// geometry or the generation settings change. Empty while no camera uses the method.
+/// geometry or the generation settings change, in the background ([`crate::background`]): the set
+/// shown is the last one finished (usually the previous frame's inputs). Empty while no camera uses the
+/// method.
 #[derive(Resource, Default, Clone, Debug)]
 pub struct VplSet {
     /// Bumped whenever `vpls` change (the shadow maps are rebuilt then).
@@ -31,18 +34,38 @@ pub struct VplSet {
     /// Bumped whenever `points` change.
     pub points_generation: u64,
     pub points: Arc<Vec<IsmPoint>>,
-    /// The settings the set was generated with (sanitised; the first VPL camera's).
+    /// The settings of the first VPL camera (sanitised). Only `light_paths`, `bounces`, `seed` and
+    /// `ism_points` are baked into the set; their values the set was made with are those of the last
+    /// finished walk.
     pub settings: VplSettings,
     /// The automatic `b` for this set ([`automatic_bound`]), 1/m².
     pub automatic_bound: f32,
     /// Total surface area of the scene, m² (each shadow map's points share it).
     pub surface_area: f32,
-    key: Option<VplKey>,
+    /// Whether the set is not yet the one of the scene as it is now (a walk runs or is due).
+    pub busy: bool,
+}
+
+/// The main-world side of the walks: the running walk and the caches it keeps between runs.
+#[derive(Resource, Default)]
+pub struct VplWalks {
+    job: BackgroundJob<WalkKey, Walked>,
+    /// `None` while a walk holds them.
+    caches: Option<Box<WalkCaches>>,
+    /// The lights' pilot rays (a copy of the caches'), from which the main thread draws the guides
+    /// every frame: they follow the cameras.
+    pilots: Option<((u64, u64, Vec<Entity>), Arc<Vec<PilotHits>>)>,
+}
+
+/// What a walk keeps between runs.
+#[derive(Default)]
+struct WalkCaches {
+    vpl_key: Option<VplKey>,
     points_key: Option<(u64, u32)>,
     /// Where the points sit (triangle and barycentrics), by layout generation, count and seed.
     samples: Option<((u64, u32, u32), Arc<Vec<super::generate::IsmSample>>)>,
     /// The lights' pilot rays, and what they were traced from.
-    pilots: Option<((u64, u64, Vec<Entity>), Vec<PilotHits>)>,
+    pilots: Option<((u64, u64, Vec<Entity>), Arc<Vec<PilotHits>>)>,
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -56,6 +79,23 @@ struct VplKey {
     guides: Vec<EmissionGuide>,
 }
 
+/// The inputs of one walk: the VPLs' and the points'.
+#[derive(Clone, Debug, PartialEq)]
+struct WalkKey {
+    vpls: VplKey,
+    layout: u64,
+    points: u32,
+}
+
+/// What a walk hands back.
+struct Walked {
+    caches: Box<WalkCaches>,
+    /// New VPLs with the scene's surface area, when they were redone.
+    vpls: Option<(Vec<Vpl>, f32)>,
+    /// New points, when they were redone.
+    points: Option<Vec<IsmPoint>>,
+}
+
 /// The settings of the first active camera that uses the VPL method, if any.
 pub(crate) fn first_vpl_camera<'a>(
     cameras: impl Iterator<Item = (Entity, &'a Camera, &'a DiffuseGi, Option<&'a VplSettings>)>,
@@ -66,11 +106,13 @@ pub(crate) fn first_vpl_camera<'a>(
         .map(|(.., settings)| settings.cloned().unwrap_or_default().sanitized().0)
 }
 
-/// Regenerates the VPLs (and the point set) when the lights, the geometry or the settings changed, and
-/// only while a camera uses the method.
+/// Keeps the VPLs (and the point set) current while a camera uses the method, without waiting for
+/// them: takes a finished walk, and starts the next when the lights, the geometry, the guides or the
+/// settings changed since the last one began.
 pub(crate) fn update_vpls(
     mut commands: Commands,
     mut set: ResMut<VplSet>,
+    mut walks: ResMut<VplWalks>,
     snapshot: Option<Res<SceneSnapshot>>,
     cameras: Query<(Entity, &Camera, &DiffuseGi, Option<&VplSettings>, &GlobalTransform)>,
     gi_lights: Query<Entity, With<GiLight>>,
@@ -79,7 +121,8 @@ pub(crate) fn update_vpls(
     let start = std::time::Instant::now();
     cost.vpl_ms = 0.0;
     let Some(settings) = first_vpl_camera(cameras.iter().map(|(e, c, gi, s, _)| (e, c, gi, s))) else {
-        if set.key.is_some() {
+        if walks.caches.is_some() || walks.job.is_running() || !set.vpls.is_empty() {
+            *walks = VplWalks::default();
             *set = VplSet { generation: set.generation + 1, points_generation: set.points_generation + 1, ..default() };
         }
         return;
@@ -90,64 +133,109 @@ pub(crate) fn update_vpls(
         }
         return;
     };
+    let walks = &mut *walks;
+
+    // 1. A finished walk: its VPLs and points replace the set's.
+    if let Some((_, walked)) = walks.job.poll() {
+        let Walked { caches, vpls, points } = walked;
+        walks.pilots = caches.pilots.clone();
+        walks.caches = Some(caches);
+        if let Some((vpls, area)) = vpls {
+            set.surface_area = area;
+            set.automatic_bound = automatic_bound(vpls.len(), area);
+            set.vpls = Arc::new(vpls);
+            set.generation += 1;
+        }
+        if let Some(points) = points {
+            set.points = Arc::new(points);
+            set.points_generation += 1;
+            // New points: the shadow maps must be splatted again.
+            set.generation += 1;
+        }
+    }
+
+    // 2. What the set should be made from now.
     let mut lights: Vec<Entity> = gi_lights.iter().collect();
     lights.sort();
     let walk = WalkSettings { paths: settings.light_paths, bounces: settings.bounces, seed: settings.seed };
-    let sources: Vec<_> =
-        snapshot.lights.iter().filter(|l| lights.binary_search(&l.entity).is_ok()).map(|l| l.light).collect();
-    // Pilot rays per light, once per light and geometry; the guides from them follow the cameras.
-    let pilot_key = (snapshot.geometry_generation, snapshot.light_generation, lights.clone());
-    if set.pilots.as_ref().is_none_or(|(k, _)| *k != pilot_key) {
-        let hits = sources.iter().map(|l| pilot_hits(&snapshot, l)).collect();
-        set.pilots = Some((pilot_key, hits));
-    }
     let positions: Vec<Vec3> = cameras
         .iter()
         .filter(|(_, camera, gi, ..)| camera.is_active && gi.enabled && gi.method == GiMethod::Vpl)
         .map(|(.., transform)| transform.translation())
         .collect();
-    let guides: Vec<EmissionGuide> = set
+    // The guides follow the cameras over the lights' pilot rays: those of the last walk, for the same
+    // GI lights (a walk after a change of geometry or lights traces new ones, and the guides drawn from
+    // them start the next; guided paths are weighted by 1/pdf, so slightly stale guides bias nothing).
+    let guides: Vec<EmissionGuide> = walks
         .pilots
         .as_ref()
+        .filter(|((_, _, pilot_lights), _)| *pilot_lights == lights)
         .map(|(_, hits)| hits.iter().map(|h| EmissionGuide::from_pilots(h, &positions)).collect())
         .unwrap_or_default();
-    let key = VplKey {
-        geometry: snapshot.geometry_generation,
-        lights: snapshot.light_generation,
-        gi_lights: lights,
-        walk,
-        guides,
-    };
-    if set.key.as_ref() != Some(&key) {
-        let vpls = generate_vpls(&snapshot, &sources, Some(&key.guides), walk);
-        set.surface_area = surface_area(&snapshot);
-        set.automatic_bound = automatic_bound(vpls.len(), set.surface_area);
-        set.vpls = Arc::new(vpls);
-        set.generation += 1;
-        set.key = Some(key);
-    }
     let count = (settings.ism_points.saturating_mul(POINT_RUNS)).min(MAX_POINTS);
-    // New points after a layout change (O(triangles)); after moves only, the same points follow their
-    // triangles (O(points)).
-    let samples_key = (snapshot.layout_generation, count, settings.seed);
-    if set.samples.as_ref().is_none_or(|(k, _)| *k != samples_key) {
-        set.samples = Some((samples_key, Arc::new(ism_samples(&snapshot, count, settings.seed))));
-    }
-    let points_key = (snapshot.geometry_generation, count);
-    if set.points_key != Some(points_key) {
-        let samples = set.samples.as_ref().map(|(_, s)| s.clone()).unwrap_or_default();
-        set.points = Arc::new(ism_positions(&snapshot, &samples));
-        set.points_generation += 1;
-        set.points_key = Some(points_key);
-        // New points: the shadow maps must be splatted again.
-        set.generation += 1;
+    let key = WalkKey {
+        vpls: VplKey { geometry: snapshot.geometry_generation, lights: snapshot.light_generation, gi_lights: lights, walk, guides },
+        layout: snapshot.layout_generation,
+        points: count,
+    };
+    if walks.job.wants(&key) {
+        let mut caches = walks.caches.take().unwrap_or_default();
+        let snapshot = snapshot.clone();
+        let walk_key = key.clone();
+        walks.job.start(key.clone(), move || {
+            let (vpls, points) = walk_scene(&mut caches, &snapshot, &walk_key, &positions);
+            Walked { caches, vpls, points }
+        });
     }
     // Only the shadow maps' size is baked into the set; gather and SSBC fields are per view.
     if set.settings.ism_resolution != settings.ism_resolution {
         set.generation += 1;
     }
     set.settings = settings;
+    set.busy = !walks.job.is_current(&key);
     cost.vpl_ms = start.elapsed().as_secs_f32() * 1000.0;
+}
+
+/// One walk, on a background task: the lights' pilot rays when the geometry or the lights changed, the
+/// guides from them for the cameras at `viewers`, the VPLs when their inputs changed, the point samples
+/// after a layout change (O(triangles)) and the points after any geometry change (after moves only, the
+/// same samples follow their triangles: O(points)).
+fn walk_scene(
+    caches: &mut WalkCaches,
+    snapshot: &SceneSnapshot,
+    key: &WalkKey,
+    viewers: &[Vec3],
+) -> (Option<(Vec<Vpl>, f32)>, Option<Vec<IsmPoint>>) {
+    let VplKey { geometry, lights, gi_lights, walk, .. } = &key.vpls;
+    let sources: Vec<_> =
+        snapshot.lights.iter().filter(|l| gi_lights.binary_search(&l.entity).is_ok()).map(|l| l.light).collect();
+    let pilot_key = (*geometry, *lights, gi_lights.clone());
+    if caches.pilots.as_ref().is_none_or(|(k, _)| *k != pilot_key) {
+        let hits = sources.iter().map(|l| pilot_hits(snapshot, l)).collect();
+        caches.pilots = Some((pilot_key, Arc::new(hits)));
+    }
+    // The guides of this scene's pilots (the main thread's, in the key, may be a walk old: they only
+    // decide when to walk again).
+    let guides = caches.pilots.as_ref().map(|(_, hits)| hits.iter().map(|h| EmissionGuide::from_pilots(h, viewers)).collect());
+    let vpl_key = VplKey { guides: guides.unwrap_or_default(), ..key.vpls.clone() };
+    let mut vpls = None;
+    if caches.vpl_key.as_ref() != Some(&vpl_key) {
+        let generated = generate_vpls(snapshot, &sources, Some(&vpl_key.guides), *walk);
+        vpls = Some((generated, surface_area(snapshot)));
+        caches.vpl_key = Some(vpl_key);
+    }
+    let samples_key = (key.layout, key.points, walk.seed);
+    if caches.samples.as_ref().is_none_or(|(k, _)| *k != samples_key) {
+        caches.samples = Some((samples_key, Arc::new(ism_samples(snapshot, key.points, walk.seed))));
+    }
+    let mut points = None;
+    let points_key = (*geometry, key.points);
+    if caches.points_key != Some(points_key) {
+        let samples = caches.samples.as_ref().map(|(_, s)| s.clone()).unwrap_or_default();
+        points = Some(ism_positions(snapshot, &samples));
+        caches.points_key = Some(points_key);
+    }
+    (vpls, points)
 }
 
 /// The VPL set in the render world (the `Arc`s are shared, not copied).

@@ -57,7 +57,11 @@
 //! # Cost (skipping what a scene does not need)
 //! No camera with [`GiMethod::Vpl`](crate::camera::GiMethod::Vpl): nothing runs, not even the walks.
 //! A still scene reuses its VPLs and shadow maps; per frame only the gather (`O(pixels × VPLs)`) and SSBC
-//! (`O(pixels × samples × steps)`) run per view.
+//! (`O(pixels × samples × steps)`) run per view. The walks (the lights' pilot rays, the random walks,
+//! the shadow maps' point set) run in the background ([`crate::background`]) when their inputs change,
+//! over a copy of the scene snapshot: the frame uses the last finished set (usually the previous
+//! frame's inputs: the VPLs lag a change by a frame or two), and the main thread only compares inputs
+//! and draws the guides ([`MainThreadCost::vpl_ms`](crate::MainThreadCost)).
 //!
 //! # Measured (lavapipe, 256², `docs/vpl_ssbc.md`)
 //! | scene | medium: block RMSE / energy | high | still frame, medium |
@@ -76,11 +80,14 @@
 //!   largest error left on `cornell`), and light through thin walls where they meet another surface
 //!   (`cellar`'s wall–ceiling junction at 1.9 × the truth with the medium preset).
 //! * Any change of a GI light or of the geometry regenerates every VPL and every shadow map (the walks are
-//!   cheap; the splats cost VPLs × `ism_points`); a moving mesh also rebuilds the snapshot.
+//!   cheap and off the main thread; the splats cost VPLs × `ism_points`); a moving mesh also rebuilds
+//!   the snapshot. A new set replaces the last at once, without a blend (consecutive sets of the same
+//!   seed differ little).
 //! * Emissive surfaces emit no VPLs (only `GiLight`s do).
 
 pub mod generate;
 pub(crate) mod extract;
+pub use extract::VplSet;
 mod render;
 
 use bevy::prelude::*;
@@ -103,16 +110,19 @@ use crate::settings::{Clamped, GiSettings};
 #[doc(alias = "SSBC")]
 pub struct VplSettings {
     /// Light paths traced from the GI lights (split between them by power). Each leaves up to
-    /// [`bounces`](Self::bounces) VPLs. Range 1–16384; medium 256. Cost: the gather is linear in the VPL
-    /// count per pixel, and the shadow maps in VPLs × `ism_points`.
+    /// [`bounces`](Self::bounces) VPLs. Range 1–16384; low 64, medium 160, high 384. Cost: the gather is
+    /// linear in the VPL count per pixel, and the shadow maps in VPLs × `ism_points`. A change: new walks
+    /// (in the background) and shadow maps.
     pub light_paths: u32,
     /// Most surface hits per light path that leave a VPL: 1 is one-bounce indirect light, 2 adds light
     /// that bounced twice, and so on. Paths end earlier by Russian roulette on the albedo, so a room of
     /// albedo ρ gets about `paths / (1 − ρ)` VPLs whatever the cap; a low cap loses the light of the
     /// longer paths (the tail `ρ^bounces`). Range 1–32; default 16. Cost: at most paths × bounces VPLs.
+    /// A change: new walks (in the background) and shadow maps.
     pub bounces: u32,
     /// Seed of the quasi-random light paths. Any value; default 0. Changing it gives another, equally good
-    /// VPL set (an animation of it flickers, a fixed one does not).
+    /// VPL set (an animation of it flickers, a fixed one does not). A change: new walks and points (in
+    /// the background) and shadow maps.
     pub seed: u32,
     /// Bound `b` of the clamped geometry term `G_b = min(G, b)` (§3.1), in 1/m². `0` (the default) picks it
     /// from the VPL density: `b = N_VPL / A_surfaces`, so that the bounding radius `r = 1/√b` is the mean
@@ -120,10 +130,12 @@ pub struct VplSettings {
     /// SSBC to return); smaller values clamp more and make SSBC search a larger radius (slower).
     pub geometry_bound: f32,
     /// Side of each VPL's imperfect shadow map (paraboloid over its hemisphere), in texels, rounded down
-    /// to a multiple of 4. Range 8–128; medium 32. Cost: memory VPLs × side² × 5.25 bytes; finer maps need more `ism_points` to fill.
+    /// to a multiple of 4. Range 8–128; medium 32. Cost: memory VPLs × side² × 5.25 bytes; finer maps need
+    /// more `ism_points` to fill. A change: the shadow maps are splatted again (no new walks).
     pub ism_resolution: u32,
     /// Scene points each VPL splats into its shadow map, each as the footprint of the surface disk it
     /// stands for (`area / ism_points`). Range 64–65536; medium 8192. Cost: linear, once per VPL change.
+    /// A change: a new point set (in the background) and shadow maps.
     /// Too few make coarse disks that shadow nearby surfaces too much and leave gaps where thin walls meet
     /// (light through walls).
     pub ism_points: u32,
@@ -252,6 +264,7 @@ impl Plugin for VplPlugin {
         };
         app.register_type::<VplSettings>()
             .init_resource::<extract::VplSet>()
+            .init_resource::<extract::VplWalks>()
             .add_systems(
                 PostUpdate,
                 (
