@@ -188,8 +188,10 @@ fn motion(rounds: usize) -> Result<String, String> {
     out += &format!(
         "\nFrame without GI: {base:.0} ms (median of {rounds} run(s)); {MOTION_TIMED} frames of {MOTION_FRAMES} timed while \
          moving. \"Frames to catch up\" counts the frames after the motion stopped until the CPU methods' background \
-         work had reached the final pose and blended in (0 for the GPU methods, which have none; Radiance Hints' \
-         volume refinement after a change is in the accuracy section's recovery rows).\n"
+         work (radiosity, photon grid, VPL walks) had reached the final pose and blended in (0 for the methods with \
+         none; Radiance Hints' volume refinement after a change is in the accuracy section's recovery rows). On \
+         lavapipe the background work and the rasteriser share the two CPU cores, so the frame ratios of the CPU \
+         methods while moving include that contention.\n"
     );
     Ok(out)
 }
