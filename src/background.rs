@@ -60,15 +60,12 @@ pub struct BackgroundJob<K, T> {
     running: Option<(K, Slot<T>)>,
     /// The key of the last result taken from a finished task.
     done: Option<K>,
-    /// Tasks started, and tasks finished, so far.
-    pub started: u64,
-    pub finished: u64,
     _marker: PhantomData<fn() -> T>,
 }
 
 impl<K, T> Default for BackgroundJob<K, T> {
     fn default() -> Self {
-        Self { running: None, done: None, started: 0, finished: 0, _marker: PhantomData }
+        Self { running: None, done: None, _marker: PhantomData }
     }
 }
 
@@ -81,7 +78,6 @@ impl<K: PartialEq + Clone, T: Send + 'static> BackgroundJob<K, T> {
         let result = slot.lock().unwrap_or_else(|p| p.into_inner()).take()?;
         let (key, _) = self.running.take().expect("a running task");
         self.done = Some(key.clone());
-        self.finished += 1;
         match result {
             Ok(result) => Some((key, result)),
             Err(panic) => {
@@ -107,11 +103,6 @@ impl<K: PartialEq + Clone, T: Send + 'static> BackgroundJob<K, T> {
         self.running.is_none() && !self.is_current(key)
     }
 
-    /// Whether the running task (if any) was started from `key`.
-    pub fn is_running_for(&self, key: &K) -> bool {
-        self.running.as_ref().is_some_and(|(k, _)| k == key)
-    }
-
     /// Starts `work` on the background [`pool`] for the inputs `key`. A task already running is
     /// abandoned (it runs to its end; its result is dropped). Callers start only when
     /// [`wants`](Self::wants) says so.
@@ -123,13 +114,22 @@ impl<K: PartialEq + Clone, T: Send + 'static> BackgroundJob<K, T> {
             *sender.lock().unwrap_or_else(|p| p.into_inner()) = Some(result);
         });
         self.running = Some((key, slot));
-        self.started += 1;
     }
 
     /// Forgets everything: the running task is abandoned (its result is never used) and the next
     /// [`wants`](Self::wants) is true.
     pub fn reset(&mut self) {
-        *self = Self { started: self.started, finished: self.finished, ..Self::default() };
+        *self = Self::default();
+    }
+}
+
+/// Records the stage times of a finished background task in Bevy's diagnostics, one measurement per
+/// stage that ran (a stage that did not run reports 0 and is left out).
+pub fn record_stages(diagnostics: &mut bevy::diagnostic::Diagnostics, stages: &[(&bevy::diagnostic::DiagnosticPath, f32)]) {
+    for &(path, ms) in stages {
+        if ms > 0.0 {
+            diagnostics.add_measurement(path, || ms as f64);
+        }
     }
 }
 
@@ -157,6 +157,16 @@ impl Blend {
         }
         self.frame += 1;
         Some(self.frame as f32 / BLEND_FRAMES as f32)
+    }
+
+    /// `from` blended towards `to` (element by element, with `lerp`) at the weight now; `to` itself once
+    /// the blend is done.
+    pub fn mix<T: Copy>(&self, from: &[T], to: &[T], lerp: impl Fn(T, T, f32) -> T) -> Vec<T> {
+        let t = self.weight();
+        if t >= 1.0 {
+            return to.to_vec();
+        }
+        from.iter().zip(to).map(|(a, b)| lerp(*a, *b, t)).collect()
     }
 
     /// The new result's weight now, in `[0, 1]`.
@@ -189,14 +199,13 @@ mod tests {
         let mut job = BackgroundJob::<u32, std::thread::ThreadId>::default();
         assert!(job.wants(&1) && !job.is_running());
         job.start(1, || std::thread::current().id());
-        assert!(job.is_running() && job.is_running_for(&1) && !job.wants(&1) && !job.wants(&2));
+        assert!(job.is_running() && !job.wants(&1) && !job.wants(&2));
         let (key, thread) = wait(&mut job);
         assert_eq!(key, 1);
         assert_ne!(thread, std::thread::current().id(), "the work ran on the calling thread");
         assert!(pool().current_thread_index().is_none(), "the test thread is not a pool thread");
         assert!(job.poll().is_none(), "a result is handed out once");
         assert!(job.is_current(&1) && !job.wants(&1) && job.wants(&2));
-        assert_eq!((job.started, job.finished), (1, 1));
         job.reset();
         assert!(job.wants(&1));
     }
@@ -248,5 +257,12 @@ mod tests {
         assert_eq!(*weights.last().unwrap(), 1.0);
         assert!(blend.is_done() && Blend::DONE.is_done());
         assert_eq!((Blend::start().weight(), Blend::DONE.weight()), (0.0, 1.0));
+        let mut half = Blend::start();
+        for _ in 0..BLEND_FRAMES / 2 {
+            half.advance();
+        }
+        let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
+        assert_eq!(half.mix(&[0.0, 2.0], &[2.0, 4.0], lerp), vec![1.0, 3.0]);
+        assert_eq!(Blend::DONE.mix(&[0.0], &[5.0], lerp), vec![5.0]);
     }
 }

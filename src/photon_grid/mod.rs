@@ -79,8 +79,8 @@
 //!
 //! # Cost
 //! Nothing runs without an active camera using [`GiMethod::PhotonGrid`](crate::camera::GiMethod).
-//! The preparation never runs on the main thread: it is a task on Bevy's `AsyncComputeTaskPool`
-//! (using the rayon pool inside) over a copy of the scene snapshot ([`crate::background`]), started
+//! The preparation never runs on the main thread: it is a task on the crate's background thread pool
+//! (its rayon loops stay on that pool) over a copy of the scene snapshot ([`crate::background`]), started
 //! when what it depends on changed since the last one began, one at a time (changes made meanwhile are
 //! coalesced into the next). It redoes the V-grid when geometry changed, and photons, R-grid and SH
 //! field when geometry, lighting or a preparation setting did (the paper redoes all four every frame
@@ -135,7 +135,7 @@ use bevy::render::RenderApp;
 use bevy::render::extract_resource::{ExtractResource, ExtractResourcePlugin};
 use bevy::render::render_resource::ShaderType;
 
-use crate::background::{BackgroundJob, Blend};
+use crate::background::{self, BackgroundJob, Blend};
 use crate::camera::{DiffuseGi, GiMethod};
 use crate::light::GiLight;
 use crate::scene::{SceneSnapshot, SceneSnapshotSystems};
@@ -478,16 +478,10 @@ fn update_photon_grid(
         let Prepared { core, field, occupancy, activity: done } = prepared;
         state.core = Some(core);
         let t = done.times;
-        for (path, ms) in [
-            (&DIAGNOSTIC_VOXELIZE, t.voxelize_ms),
-            (&DIAGNOSTIC_TRACE, t.trace_ms),
-            (&DIAGNOSTIC_RGRID, t.rgrid_ms),
-            (&DIAGNOSTIC_FIELD, t.field_ms),
-        ] {
-            if ms > 0.0 {
-                diagnostics.add_measurement(path, || ms as f64);
-            }
-        }
+        background::record_stages(
+            &mut diagnostics,
+            &[(&DIAGNOSTIC_VOXELIZE, t.voxelize_ms), (&DIAGNOSTIC_TRACE, t.trace_ms), (&DIAGNOSTIC_RGRID, t.rgrid_ms), (&DIAGNOSTIC_FIELD, t.field_ms)],
+        );
         *activity = PhotonGridActivity { updates: activity.updates + 1, frames_since_start: activity.frames_since_start, ..done };
         state.shown = field.map(|(layout, field)| ShownField::after(state.shown.take(), layout, field, occupancy));
         if state.shown.is_none() {
@@ -562,11 +556,7 @@ impl ShownField {
 
     /// The coefficients on screen now.
     fn current(&self) -> Vec<Vec4> {
-        let t = self.blend.weight();
-        if t >= 1.0 {
-            return self.to.clone();
-        }
-        self.from.iter().zip(&self.to).map(|(a, b)| a.lerp(*b, t)).collect()
+        self.blend.mix(&self.from, &self.to, Vec4::lerp)
     }
 }
 

@@ -74,10 +74,10 @@
 //!
 //! # Cost
 //! Nothing runs without an active camera using [`GiMethod::Radiosity`](crate::camera::GiMethod::Radiosity).
-//! The solve never runs on the main thread: it is a task on Bevy's `AsyncComputeTaskPool` (using the
-//! rayon pool inside) over a copy of the scene snapshot ([`crate::background`]), started when what it
-//! depends on changed since the last solve began, and only one at a time: changes made while a solve
-//! runs are coalesced into the next. Until a solve finishes the previous solution is drawn; a new one
+//! The solve never runs on the main thread: it is a task on the crate's background thread pool (its
+//! rayon loops stay on that pool) over a copy of the scene snapshot ([`crate::background`]), started
+//! when what it depends on changed since the last solve began, and only one at a time: changes made
+//! while a solve runs are coalesced into the next. Until a solve finishes the previous solution is drawn; a new one
 //! is blended in over [`BLEND_FRAMES`](crate::background::BLEND_FRAMES) frames, and the drawn elements
 //! of an instance that moved since its solve follow its transform. Within a solve, each stage runs
 //! only when its inputs changed: the elements are rebuilt when meshes are added, removed or re-meshed
@@ -146,7 +146,7 @@ use rayon::prelude::*;
 
 pub use solver::{LinkTransfer, RadiositySolver, SolveParams, StageTimes};
 
-use crate::background::{BackgroundJob, Blend};
+use crate::background::{self, BackgroundJob, Blend};
 use crate::camera::{DiffuseGi, GiMethod};
 use crate::light::GiLight;
 use crate::scene::{SceneSnapshot, SceneSnapshotSystems};
@@ -390,7 +390,8 @@ struct Shown {
 
 pub use crate::scene::environment::occluded_environment;
 
-/// Main-thread milliseconds of the solve's stages, in Bevy's diagnostics (a measurement per solve).
+/// Milliseconds of the solve's stages in the background task, in Bevy's diagnostics (a measurement per
+/// solve).
 pub const DIAGNOSTIC_UPDATE_ELEMENTS: DiagnosticPath = DiagnosticPath::const_new("diffuse_gi/radiosity_update_elements");
 pub const DIAGNOSTIC_LINKS: DiagnosticPath = DiagnosticPath::const_new("diffuse_gi/radiosity_links");
 pub const DIAGNOSTIC_REFINE_PUSH: DiagnosticPath = DiagnosticPath::const_new("diffuse_gi/radiosity_refine_push");
@@ -563,17 +564,15 @@ fn update_radiosity(
             ..activity.clone()
         };
         state.core = Some(core);
-        for (path, ms) in [
-            (&DIAGNOSTIC_UPDATE_ELEMENTS, times.update_elements_ms),
-            (&DIAGNOSTIC_LINKS, times.create_links_ms),
-            (&DIAGNOSTIC_REFINE_PUSH, times.refine_push_ms),
-            (&DIAGNOSTIC_ILLUMINATION, times.illumination_ms),
-        ] {
-            // Only the stages this solve ran (a stage that did not run leaves 0).
-            if ms > 0.0 {
-                diagnostics.add_measurement(path, || ms as f64);
-            }
-        }
+        background::record_stages(
+            &mut diagnostics,
+            &[
+                (&DIAGNOSTIC_UPDATE_ELEMENTS, times.update_elements_ms),
+                (&DIAGNOSTIC_LINKS, times.create_links_ms),
+                (&DIAGNOSTIC_REFINE_PUSH, times.refine_push_ms),
+                (&DIAGNOSTIC_ILLUMINATION, times.illumination_ms),
+            ],
+        );
         if work != RadiosityWork::Reused {
             // Blend from what is on screen when the elements are the same ones; otherwise show it whole.
             let from = state.shown.as_ref().filter(|s| s.to.len() == gathered.len()).map(|s| s.current());
@@ -630,11 +629,7 @@ fn update_radiosity(
 impl Shown {
     /// The irradiance per element on screen now.
     fn current(&self) -> Vec<Vec3> {
-        let t = self.blend.weight();
-        if t >= 1.0 {
-            return self.to.clone();
-        }
-        self.from.iter().zip(&self.to).map(|(a, b)| a.lerp(*b, t)).collect()
+        self.blend.mix(&self.from, &self.to, Vec3::lerp)
     }
 
     /// Moves the drawn elements of instances whose transform changed since they were solved, so that the
