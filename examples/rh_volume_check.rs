@@ -6,6 +6,7 @@
 //! ```sh
 //! cargo run --release --example headless -- --scene cellar --method rh --frames 32 --dump-volume out/cellar.json
 //! cargo run --release --example rh_volume_check -- out/cellar.json --scene cellar [--images out/check]
+//! # also `--scene room_SEED`, a generated room (its truth in assets/ground_truth/rooms/)
 //! ```
 //! For every valid hint it traces the radiance arriving from `--directions` directions (origins jittered
 //! over the free part of the cell as the injection's receivers are; all bounces, or `--bounces N`) and
@@ -44,8 +45,8 @@ use rayon::prelude::*;
 struct Cli {
     /// The volume dump written by `headless --dump-volume`
     volume: PathBuf,
-    /// The scene the volume was made in
-    #[arg(long, default_value = "cornell", value_parser = ["cornell", "cellar", "sponza_like", "open_field"])]
+    /// The scene the volume was made in: cornell, cellar, sponza_like, open_field or room_SEED
+    #[arg(long, default_value = "cornell", value_parser = parse_scene)]
     scene: String,
     /// Directions traced per hint
     #[arg(long, default_value_t = 256, value_parser = clap::value_parser!(u32).range(4..=65536))]
@@ -296,9 +297,26 @@ fn reconstruct(volume: &Volume, scene: &SceneSnapshot, p: Vec3, n: Vec3, layout:
     sum.map(|s| s / used)
 }
 
+fn parse_scene(text: &str) -> Result<String, String> {
+    if ["cornell", "cellar", "sponza_like", "open_field"].contains(&text) || generated_room(text).is_some() {
+        Ok(text.to_string())
+    } else {
+        Err(format!("`{text}`: expected cornell, cellar, sponza_like, open_field or room_SEED"))
+    }
+}
+
+/// `room_SEED` → the generated room of that seed.
+fn generated_room(scene: &str) -> Option<scenes::GeneratedRoom> {
+    scene.strip_prefix("room_").and_then(|seed| seed.parse().ok()).map(scenes::GeneratedRoom::new)
+}
+
 fn camera(scene: &str) -> ReferenceCamera {
     use scenes::*;
     let (position, target, fov, ev100) = match scene {
+        s if generated_room(s).is_some() => {
+            let room = generated_room(s).expect("a room");
+            (room.camera_position, room.camera_target, room.fov_degrees, room.ev100)
+        }
         "cornell" => (cornell::CAMERA_POSITION, Vec3::ZERO, cornell::FOV_Y_DEGREES, CORNELL_EV100),
         "cellar" => (cellar::CAMERA_POSITION, cellar::CAMERA_TARGET, cellar::FOV_Y_DEGREES, CELLAR_EV100),
         "sponza_like" => (sponza_like::CAMERA_POSITION, sponza_like::CAMERA_TARGET, sponza_like::FOV_Y_DEGREES, SPONZA_EV100),
@@ -480,6 +498,7 @@ fn report_field(cli: &Cli, volume: &Volume) {
 
 fn run(cli: Cli) -> Result<(), String> {
     let scene = match cli.scene.as_str() {
+        s if generated_room(s).is_some() => generated_room(s).expect("a room").snapshot(),
         "cornell" => scenes::cornell_snapshot(),
         "cellar" => scenes::cellar_snapshot(),
         "sponza_like" => scenes::sponza_like_snapshot(),
@@ -490,7 +509,8 @@ fn run(cli: Cli) -> Result<(), String> {
     let Some(dir) = &cli.images else {
         return Ok(());
     };
-    let truth_path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(format!("assets/ground_truth/{}.exr", cli.scene));
+    let folder = if generated_room(&cli.scene).is_some() { "assets/ground_truth/rooms" } else { "assets/ground_truth" };
+    let truth_path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(format!("{folder}/{}.exr", cli.scene));
     let truth = HdrImage::read(&truth_path).map_err(|e| e.to_string())?;
     let camera = camera(&cli.scene);
     let (width, height) = (truth.width, truth.height);

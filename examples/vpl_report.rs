@@ -115,7 +115,8 @@ fn vpl_count(scene: &StandardScene, settings: &VplSettings) -> usize {
         | StandardScene::EmissivePanel
         | StandardScene::OpenField
         | StandardScene::NearLight
-        | StandardScene::SkyRoom => return 0,
+        | StandardScene::SkyRoom
+        | StandardScene::Room(_) => return 0,
     };
     let lights: Vec<_> = snapshot.lights.iter().map(|l| l.light).collect();
     let guides: Vec<_> = lights.iter().map(|l| EmissionGuide::from_pilots(&pilot_hits(&snapshot, l), &[camera])).collect();

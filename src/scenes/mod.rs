@@ -12,6 +12,8 @@
 //!   and a door (`sky_room.rs`).
 //! * [`StandardScene::NearLight`]: `cornell` with a block hung just below the light (`near_light.rs`).
 //! * [`StandardScene::Dynamic`]: a room with ten moving objects and an orbiting light (`dynamic.rs`).
+//! * [`StandardScene::Room`]: `room_SEED`, one of a seeded family of generated rooms no method was tuned
+//!   on (`rooms.rs`).
 //! * [`StandardScene::Gltf`]: any glTF 2.0 file, loaded through Bevy's glTF loader (meshes,
 //!   `StandardMaterial`s, `KHR_lights_punctual` lights, the first camera). Bevy spawns glTF lights without
 //!   shadows; here they get shadows on and a [`GiLight`], so that a wall blocks light in the game as it
@@ -27,6 +29,7 @@ pub mod dynamic;
 pub mod emissive_panel;
 pub mod near_light;
 pub mod open_field;
+pub mod rooms;
 pub mod sky_room;
 pub mod sponza_like;
 
@@ -47,6 +50,7 @@ pub use dynamic::{DYNAMIC_EV100, DynamicScene, dynamic_pose, spawn_dynamic};
 pub use emissive_panel::{EMISSIVE_PANEL_EV100, spawn_emissive_panel};
 pub use near_light::{NEAR_LIGHT_EV100, spawn_near_light};
 pub use open_field::{OPEN_FIELD_EV100, open_field_snapshot, spawn_open_field};
+pub use rooms::{GeneratedRoom, ROOM_HELD_OUT_SEEDS, ROOM_TUNING_SEEDS, RoomLight};
 pub use sky_room::{SKY_ROOM_EV100, sky_room_snapshot, spawn_sky_room};
 pub use sponza_like::{SPONZA_EV100, spawn_sponza_like, sponza_like_snapshot};
 
@@ -73,6 +77,8 @@ pub enum StandardScene {
     /// An 8 × 6 × 3 m room lit only by the sky (an `EnvironmentMapLight`) through a roof opening and a
     /// door.
     SkyRoom,
+    /// A generated room of the unseen-rooms family ([`GeneratedRoom`]), by seed: `room_7` or `room:7`.
+    Room(u64),
     /// A glTF 2.0 file (`.glb` or `.gltf`).
     Gltf(PathBuf),
 }
@@ -93,6 +99,10 @@ impl StandardScene {
             "open_field" => Ok(Self::OpenField),
             "near_light" => Ok(Self::NearLight),
             "sky_room" => Ok(Self::SkyRoom),
+            room if room.starts_with("room_") || room.starts_with("room:") => room[5..]
+                .parse::<u64>()
+                .map(Self::Room)
+                .map_err(|_| format!("`{room}`: a generated room is `room_SEED` with SEED a whole number")),
             path if path.ends_with(".glb") || path.ends_with(".gltf") => {
                 let p = Path::new(path);
                 if !p.is_file() {
@@ -101,7 +111,7 @@ impl StandardScene {
                 Ok(Self::Gltf(p.to_path_buf()))
             }
             other => Err(format!(
-                "unknown scene `{other}`: expected one of {} or a path to a .glb/.gltf file",
+                "unknown scene `{other}`: expected one of {}, room_SEED or a path to a .glb/.gltf file",
                 Self::NAMES.join(", ")
             )),
         }
@@ -118,6 +128,7 @@ impl StandardScene {
             Self::OpenField => "open_field".into(),
             Self::NearLight => "near_light".into(),
             Self::SkyRoom => "sky_room".into(),
+            Self::Room(seed) => format!("room_{seed}"),
             Self::Gltf(path) => path.display().to_string(),
         }
     }
@@ -301,6 +312,10 @@ pub fn spawn_standard_scene(
         }
         StandardScene::SkyRoom => {
             spawn_sky_room(commands, meshes, materials, ev100.unwrap_or(SKY_ROOM_EV100));
+            commands.insert_resource(SceneStatus::Ready);
+        }
+        StandardScene::Room(seed) => {
+            GeneratedRoom::new(*seed).spawn(commands, meshes, materials, ev100);
             commands.insert_resource(SceneStatus::Ready);
         }
         StandardScene::Gltf(path) => {
