@@ -31,7 +31,7 @@ fn visibility(i: u32, local: vec3<f32>, d: f32, cos_x: f32) -> f32 {
     let tan_x = min(sqrt(max(1.0 - cos_x * cos_x, 0.0)) / max(cos_x, 1e-3), 8.0);
     // Points are splatted as disks of `point_radius`: the receiver's own surface may stand that much
     // closer to the VPL within its footprint.
-    let tolerance = d * (u.ism_bias + 4.0 / f32(r) * tan_x) + u.point_radius;
+    let tolerance = d * (u.ism_bias + u.slope_tolerance * 4.0 / f32(r) * tan_x) + u.point_radius;
     let p = paraboloid_coords(local, r) - 0.5;
     let base = vec2<i32>(floor(p));
     let f = p - floor(p);

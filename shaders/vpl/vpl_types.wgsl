@@ -31,6 +31,8 @@ struct VplUniform {
     intensity: f32,
     // Radius of the surface disk one shadow-map point stands for, metres.
     point_radius: f32,
+    // Multiplies the slope-scaled part of the depth tolerance: 1 for splatted maps, 0 for traced ones.
+    slope_tolerance: f32,
 }
 
 // A continuous orthonormal basis (t, b, n) around unit n (Duff et al. 2017); the same in every pass.

@@ -492,7 +492,10 @@ pub struct VplArgs {
     /// Bound b of the clamped geometry term, 1/m² (0 = automatic)
     #[arg(long, value_name = "B")]
     pub vpl_bound: Option<f32>,
-    /// Imperfect shadow map side, texels
+    /// Shadow maps: traced (ray-traced on the CPU, the default) or imperfect (splatted points)
+    #[arg(long, value_name = "MODE", value_parser = parse_vpl_visibility)]
+    pub vpl_visibility: Option<crate::vpl::VplVisibility>,
+    /// Shadow map side, texels
     #[arg(long, value_name = "N")]
     pub vpl_ism_resolution: Option<u32>,
     /// Points per imperfect shadow map
@@ -555,6 +558,14 @@ fn parse_size(text: &str) -> Result<UVec2, String> {
 
 fn parse_exr_path(text: &str) -> Result<PathBuf, String> {
     if text.ends_with(".exr") { Ok(PathBuf::from(text)) } else { Err(format!("`{text}` must end in .exr")) }
+}
+
+fn parse_vpl_visibility(text: &str) -> Result<crate::vpl::VplVisibility, String> {
+    match text {
+        "traced" => Ok(crate::vpl::VplVisibility::Traced),
+        "imperfect" => Ok(crate::vpl::VplVisibility::Imperfect),
+        other => Err(format!("`{other}`: expected traced or imperfect")),
+    }
 }
 
 fn parse_ev100(text: &str) -> Result<f32, String> {
@@ -781,6 +792,7 @@ impl VplArgs {
             bounces <- vpl_bounces,
             seed <- vpl_seed,
             geometry_bound <- vpl_bound,
+            visibility <- vpl_visibility,
             ism_resolution <- vpl_ism_resolution,
             ism_points <- vpl_ism_points,
             ism_bias <- vpl_ism_bias,

@@ -308,6 +308,11 @@ fn vpl_ui(ui: &mut egui::Ui, settings: &mut Mut<VplSettings>) {
     ui.add(egui::Slider::new(&mut v.bounces, 1..=32).text("max bounces"));
     ui.add(egui::DragValue::new(&mut v.seed).prefix("seed "));
     ui.add(egui::Slider::new(&mut v.geometry_bound, 0.0..=1000.0).logarithmic(true).text("bound b (1/m², 0 = auto)"));
+    ui.horizontal(|ui| {
+        ui.label("shadow maps");
+        ui.radio_value(&mut v.visibility, crate::vpl::VplVisibility::Traced, "traced (CPU rays)");
+        ui.radio_value(&mut v.visibility, crate::vpl::VplVisibility::Imperfect, "imperfect (splats)");
+    });
     ui.add(egui::Slider::new(&mut v.ism_resolution, 8..=128).text("shadow map side (texels)"));
     ui.add(egui::Slider::new(&mut v.ism_points, 64..=65536).logarithmic(true).text("points per shadow map"));
     ui.add(egui::Slider::new(&mut v.ism_bias, 0.0..=1.0).text("shadow bias (× distance)"));

@@ -5,10 +5,11 @@ use std::sync::Arc;
 use bevy::prelude::*;
 use bevy::render::Extract;
 
-use super::VplSettings;
+use super::{VplSettings, VplVisibility};
 use crate::settings::GiSettings;
 use super::generate::{
     EmissionGuide, IsmPoint, PilotHits, Vpl, WalkSettings, automatic_bound, generate_vpls, ism_positions, ism_samples, pilot_hits, surface_area,
+    traced_shadow_maps,
 };
 use crate::background::BackgroundJob;
 use crate::camera::{DiffuseGi, GiDebugView, GiMethod};
@@ -42,6 +43,10 @@ pub struct VplSet {
     pub automatic_bound: f32,
     /// Total surface area of the scene, m² (each shadow map's points share it).
     pub surface_area: f32,
+    /// [`VplVisibility::Traced`](super::VplVisibility): the ray-traced shadow maps of `vpls` (side,
+    /// then `side²` words per VPL, see [`traced_shadow_maps`](super::generate::traced_shadow_maps)). The
+    /// GPU splats imperfect ones while these are missing or stale.
+    pub shadow_maps: Option<(u32, Arc<Vec<u32>>)>,
     /// Whether the set is not yet the one of the scene as it is now (a walk runs or is due).
     pub busy: bool,
 }
@@ -66,6 +71,9 @@ struct WalkCaches {
     samples: Option<((u64, u32, u32), Arc<Vec<super::generate::IsmSample>>)>,
     /// The lights' pilot rays, and what they were traced from.
     pilots: Option<((u64, u64, Vec<Entity>), Arc<Vec<PilotHits>>)>,
+    /// The last VPLs, and what their traced shadow maps were made for (the VPLs' key and the side).
+    vpls: Arc<Vec<Vpl>>,
+    maps_key: Option<(VplKey, u32)>,
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -85,15 +93,19 @@ struct WalkKey {
     vpls: VplKey,
     layout: u64,
     points: u32,
+    /// The side of the traced shadow maps, or `None` for imperfect ones.
+    maps: Option<u32>,
 }
 
 /// What a walk hands back.
 struct Walked {
     caches: Box<WalkCaches>,
     /// New VPLs with the scene's surface area, when they were redone.
-    vpls: Option<(Vec<Vpl>, f32)>,
+    vpls: Option<(Arc<Vec<Vpl>>, f32)>,
     /// New points, when they were redone.
     points: Option<Vec<IsmPoint>>,
+    /// New traced shadow maps (or none, for imperfect ones), when they were redone.
+    maps: Option<Option<(u32, Arc<Vec<u32>>)>>,
 }
 
 /// The settings of the first active camera that uses the VPL method, if any.
@@ -137,13 +149,17 @@ pub(crate) fn update_vpls(
 
     // 1. A finished walk: its VPLs and points replace the set's.
     if let Some((_, walked)) = walks.job.poll() {
-        let Walked { caches, vpls, points } = walked;
+        let Walked { caches, vpls, points, maps } = walked;
         walks.pilots = caches.pilots.clone();
         walks.caches = Some(caches);
         if let Some((vpls, area)) = vpls {
             set.surface_area = area;
             set.automatic_bound = automatic_bound(vpls.len(), area);
-            set.vpls = Arc::new(vpls);
+            set.vpls = vpls;
+            set.generation += 1;
+        }
+        if let Some(maps) = maps {
+            set.shadow_maps = maps;
             set.generation += 1;
         }
         if let Some(points) = points {
@@ -177,18 +193,19 @@ pub(crate) fn update_vpls(
         vpls: VplKey { geometry: snapshot.geometry_generation, lights: snapshot.light_generation, gi_lights: lights, walk, guides },
         layout: snapshot.layout_generation,
         points: count,
+        maps: (settings.visibility == VplVisibility::Traced).then(|| super::render::ism_side(settings.ism_resolution)),
     };
     if walks.job.wants(&key) {
         let mut caches = walks.caches.take().unwrap_or_default();
         let snapshot = snapshot.clone();
         let walk_key = key.clone();
         walks.job.start(key.clone(), move || {
-            let (vpls, points) = walk_scene(&mut caches, &snapshot, &walk_key, &positions);
-            Walked { caches, vpls, points }
+            let (vpls, points, maps) = walk_scene(&mut caches, &snapshot, &walk_key, &positions);
+            Walked { caches, vpls, points, maps }
         });
     }
-    // Only the shadow maps' size is baked into the set; gather and SSBC fields are per view.
-    if set.settings.ism_resolution != settings.ism_resolution {
+    // Only the shadow maps' size and kind are baked into the set; gather and SSBC fields are per view.
+    if set.settings.ism_resolution != settings.ism_resolution || set.settings.visibility != settings.visibility {
         set.generation += 1;
     }
     set.settings = settings;
@@ -199,13 +216,15 @@ pub(crate) fn update_vpls(
 /// One walk, on a background task: the lights' pilot rays when the geometry or the lights changed, the
 /// guides from them for the cameras at `viewers`, the VPLs when their inputs changed, the point samples
 /// after a layout change (O(triangles)) and the points after any geometry change (after moves only, the
-/// same samples follow their triangles: O(points)).
+/// same samples follow their triangles: O(points)), and the traced shadow maps when the VPLs or their
+/// side changed (O(VPLs × side²) rays).
+#[expect(clippy::type_complexity, reason = "what changed, each part optional")]
 fn walk_scene(
     caches: &mut WalkCaches,
     snapshot: &SceneSnapshot,
     key: &WalkKey,
     viewers: &[Vec3],
-) -> (Option<(Vec<Vpl>, f32)>, Option<Vec<IsmPoint>>) {
+) -> (Option<(Arc<Vec<Vpl>>, f32)>, Option<Vec<IsmPoint>>, Option<Option<(u32, Arc<Vec<u32>>)>>) {
     let VplKey { geometry, lights, gi_lights, walk, .. } = &key.vpls;
     let sources: Vec<_> =
         snapshot.lights.iter().filter(|l| gi_lights.binary_search(&l.entity).is_ok()).map(|l| l.light).collect();
@@ -220,9 +239,15 @@ fn walk_scene(
     let vpl_key = VplKey { guides: guides.unwrap_or_default(), ..key.vpls.clone() };
     let mut vpls = None;
     if caches.vpl_key.as_ref() != Some(&vpl_key) {
-        let generated = generate_vpls(snapshot, &sources, Some(&vpl_key.guides), *walk);
-        vpls = Some((generated, surface_area(snapshot)));
-        caches.vpl_key = Some(vpl_key);
+        caches.vpls = Arc::new(generate_vpls(snapshot, &sources, Some(&vpl_key.guides), *walk));
+        vpls = Some((caches.vpls.clone(), surface_area(snapshot)));
+        caches.vpl_key = Some(vpl_key.clone());
+    }
+    let maps_key = key.maps.map(|side| (vpl_key, side));
+    let mut maps = None;
+    if caches.maps_key != maps_key {
+        maps = Some(key.maps.map(|side| (side, Arc::new(traced_shadow_maps(snapshot, &caches.vpls, side)))));
+        caches.maps_key = maps_key;
     }
     let samples_key = (key.layout, key.points, walk.seed);
     if caches.samples.as_ref().is_none_or(|(k, _)| *k != samples_key) {
@@ -235,7 +260,7 @@ fn walk_scene(
         points = Some(ism_positions(snapshot, &samples));
         caches.points_key = Some(points_key);
     }
-    (vpls, points)
+    (vpls, points, maps)
 }
 
 /// The VPL set in the render world (the `Arc`s are shared, not copied).

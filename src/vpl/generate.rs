@@ -433,6 +433,70 @@ pub fn automatic_bound(vpl_count: usize, surface_area: f32) -> f32 {
     (vpl_count.max(1) as f32 / surface_area.max(1e-6)).max(1e-6)
 }
 
+/// The orthonormal basis `(t, b, n)` of `shaders/vpl/vpl_types.wgsl`'s `basis` (Duff et al. 2017): the
+/// shadow maps are laid out in it, so the CPU and the GPU must agree to the bit.
+pub fn shadow_map_basis(n: Vec3) -> [Vec3; 3] {
+    let s = if n.z >= 0.0 { 1.0 } else { -1.0 };
+    let a = -1.0 / (s + n.z);
+    let b = n.x * n.y * a;
+    [Vec3::new(1.0 + s * n.x * n.x * a, s * b, -s * n.x), Vec3::new(b, s + n.y * n.y * a, -n.y), n]
+}
+
+/// The world direction through the centre of texel `(x, y)` of a `side`² paraboloid map over the
+/// hemisphere of `normal` (the inverse of `paraboloid_coords` in `vpl_types.wgsl`), or `None` for the
+/// corners outside the paraboloid's disk.
+pub fn paraboloid_direction(normal: Vec3, side: u32, x: u32, y: u32) -> Option<Vec3> {
+    let uv = Vec2::new((x as f32 + 0.5) / side as f32, (y as f32 + 0.5) / side as f32) * 2.0 - 1.0;
+    let r2 = uv.length_squared();
+    if r2 > 1.0 {
+        return None;
+    }
+    // uv = xy / (1 + z) on the unit sphere: z = (1 − r²) / (1 + r²), xy = uv (1 + z).
+    let z = (1.0 - r2) / (1.0 + r2);
+    let xy = uv * (1.0 + z);
+    let [t, b, n] = shadow_map_basis(normal);
+    Some((t * xy.x + b * xy.y + n * z).normalize())
+}
+
+/// Ray-traced shadow maps: for every VPL, a `side`² paraboloid map of the distance, through each texel's
+/// centre, to the second surface the ray meets (the far side of the first occluder), stored as the GPU's
+/// imperfect shadow maps store depths (the bits of `1/d`, 0 where nothing is there), VPL after VPL with
+/// `side²` words each.
+///
+/// Imperfect shadow maps splat a few thousand points per VPL: a wall thinner than the gaps between its
+/// points lets light through, and a generated two-room family showed it on most rooms lit next door (a
+/// 28 cm wall: the camera's room at 1.9× its light, `docs/unseen_rooms.md`). One ray per texel through
+/// the snapshot's BVH sees every wall, whatever its thickness. The rays run with the walks, in the
+/// background: VPLs × side² × 2 rays (about 650 000 for the medium preset's VPLs at 32²).
+pub fn traced_shadow_maps(snapshot: &SceneSnapshot, vpls: &[Vpl], side: u32) -> Vec<u32> {
+    use rayon::prelude::*;
+    let texels = (side * side) as usize;
+    let mut maps = vec![0u32; vpls.len() * texels];
+    maps.par_chunks_mut(texels).zip(vpls.par_iter()).for_each(|(map, vpl)| {
+        for y in 0..side {
+            for x in 0..side {
+                let Some(direction) = paraboloid_direction(vpl.normal, side, x, y) else {
+                    continue;
+                };
+                // The far side of the first occluder (second-depth shadow maps, Wang & Molnar 1994): the
+                // first surface a texel sees stays lit across the texel whatever its slope, and anything
+                // behind the occluder is shadowed. Nothing behind the first surface: the ray left the
+                // scene there, and nothing further needs a shadow.
+                let Some(first) = snapshot.intersect(vpl.position, direction, 0.0, f32::INFINITY) else {
+                    continue;
+                };
+                let far = first.t + snapshot.ray_epsilon();
+                if let Some(second) = snapshot.intersect(vpl.position, direction, far, f32::INFINITY)
+                    && second.t > 0.0
+                {
+                    map[(y * side + x) as usize] = (1.0 / second.t).to_bits();
+                }
+            }
+        }
+    });
+    maps
+}
+
 /// Total surface area of the snapshot, m².
 pub fn surface_area(snapshot: &SceneSnapshot) -> f32 {
     snapshot.triangles().map(|(_, t)| triangle_area(&t).max(0.0)).sum()
@@ -446,6 +510,60 @@ mod tests {
     /// `a ≈ b` within `rel` of `b`'s magnitude (plus a tiny absolute floor).
     fn close(a: f32, b: f32, rel: f32) -> bool {
         (a - b).abs() <= rel * b.abs().max(1e-12) + 1e-9
+    }
+
+    /// `paraboloid_coords` of `vpl_types.wgsl`, in Rust.
+    fn paraboloid_coords(normal: Vec3, d: Vec3, side: u32) -> Vec2 {
+        let [t, b, n] = shadow_map_basis(normal);
+        let local = Vec3::new(d.dot(t), d.dot(b), d.dot(n));
+        let uv = Vec2::new(local.x, local.y) / (1.0 + local.z.max(0.0));
+        (uv * 0.5 + 0.5) * side as f32
+    }
+
+    #[test]
+    fn paraboloid_directions_land_in_their_own_texels() {
+        for normal in [Vec3::Y, -Vec3::Z, Vec3::new(0.3, -0.5, 0.8).normalize()] {
+            let [t, b, n] = shadow_map_basis(normal);
+            assert!(t.dot(b).abs() < 1e-5 && t.dot(n).abs() < 1e-5 && b.dot(n).abs() < 1e-5 && close(t.length(), 1.0, 1e-5));
+            let side = 16;
+            let mut inside = 0;
+            for y in 0..side {
+                for x in 0..side {
+                    let Some(d) = paraboloid_direction(normal, side, x, y) else { continue };
+                    inside += 1;
+                    assert!(d.dot(normal) >= 0.0);
+                    let p = paraboloid_coords(normal, d, side);
+                    assert!((p - Vec2::new(x as f32 + 0.5, y as f32 + 0.5)).length() < 1e-3, "{normal} ({x}, {y}) → {p}");
+                }
+            }
+            // The disk covers π/4 of the square.
+            assert!((inside as f32 / (side * side) as f32 - PI / 4.0).abs() < 0.03, "{inside}");
+        }
+    }
+
+    #[test]
+    fn traced_shadow_maps_keep_the_first_surface_lit_and_shadow_what_lies_behind_a_thin_wall() {
+        // A floor, and a 4 cm wall standing on it at x ∈ [1, 1.04].
+        let mut triangles = quad([Vec3::new(-5.0, 0.0, -5.0), Vec3::new(-5.0, 0.0, 5.0), Vec3::new(5.0, 0.0, 5.0), Vec3::new(5.0, 0.0, -5.0)], 0).to_vec();
+        let mesh = bevy::prelude::Mesh::from(bevy::math::primitives::Cuboid::from_corners(Vec3::new(1.0, 0.0, -5.0), Vec3::new(1.04, 3.0, 5.0)));
+        triangles.extend(crate::scene::mesh_triangles(&mesh, &bevy::prelude::GlobalTransform::from_translation(Vec3::new(1.02, 1.5, 0.0)), 0).expect("mesh"));
+        let snapshot = SceneSnapshot::build(triangles, vec![material(0.5)], vec![], vec![]);
+        let vpl = Vpl { position: Vec3::new(0.0, 0.01, 0.0), normal: Vec3::Y, flux: Vec3::ONE, bounce: 1 };
+        let side = 32;
+        let maps = traced_shadow_maps(&snapshot, &[vpl], side);
+        let lookup = |p: Vec3| {
+            let uv = paraboloid_coords(vpl.normal, (p - vpl.position).normalize(), side);
+            let stored = maps[(uv.y as u32 * side + uv.x as u32) as usize];
+            if stored == 0 { f32::INFINITY } else { 1.0 / f32::from_bits(stored) }
+        };
+        // The wall's own face (1 m away) is in front of its stored far side; a point on the floor behind
+        // the wall (3 m away) is behind it; so is the back face of the wall itself.
+        let face = Vec3::new(1.0, 0.5, 0.3);
+        assert!((face - vpl.position).length() < lookup(face), "the lit face of the wall is shadowed");
+        let behind = Vec3::new(3.0, 0.0, 0.3);
+        assert!((behind - vpl.position).length() > lookup(behind) + 0.05, "light goes through the wall");
+        let far_floor = Vec3::new(-3.0, 0.0, 0.5);
+        assert!((far_floor - vpl.position).length() <= lookup(far_floor), "the open floor is shadowed");
     }
 
     fn quad(corners: [Vec3; 4], material: u32) -> [InputTriangle; 2] {

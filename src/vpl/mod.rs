@@ -94,6 +94,7 @@ use bevy::prelude::*;
 use bevy::render::RenderApp;
 
 pub use generate::Vpl;
+
 pub use render::{GpuVpl, VplUniform};
 
 use crate::settings::{Clamped, GiSettings};
@@ -129,12 +130,17 @@ pub struct VplSettings {
     /// VPL spacing. Range 0 or 10⁻⁶–10⁶. Larger values clamp less (brighter splotches near VPLs, less for
     /// SSBC to return); smaller values clamp more and make SSBC search a larger radius (slower).
     pub geometry_bound: f32,
-    /// Side of each VPL's imperfect shadow map (paraboloid over its hemisphere), in texels, rounded down
-    /// to a multiple of 4. Range 8–128; medium 32. Cost: memory VPLs × side² × 5.25 bytes; finer maps need
-    /// more `ism_points` to fill. A change: the shadow maps are splatted again (no new walks).
+    /// How the VPLs' shadow maps are made. Default [`VplVisibility::Traced`]. A change: new shadow maps
+    /// (traced in the background, or splatted), no new walks.
+    pub visibility: VplVisibility,
+    /// Side of each VPL's shadow map (paraboloid over its hemisphere), in texels, rounded down to a
+    /// multiple of 4. Range 8–128; medium 32. Cost: memory VPLs × side² × 5.25 bytes; traced maps cost
+    /// VPLs × side² rays in the background, imperfect ones need more `ism_points` to fill finer maps.
+    /// A change: new shadow maps (no new walks).
     pub ism_resolution: u32,
-    /// Scene points each VPL splats into its shadow map, each as the footprint of the surface disk it
-    /// stands for (`area / ism_points`). Range 64–65536; medium 8192. Cost: linear, once per VPL change.
+    /// [`VplVisibility::Imperfect`] only: scene points each VPL splats into its shadow map, each as the
+    /// footprint of the surface disk it stands for (`area / ism_points`). Range 64–65536; medium 8192.
+    /// Cost: linear, once per VPL change.
     /// A change: a new point set (in the background) and shadow maps.
     /// Too few make coarse disks that shadow nearby surfaces too much and leave gaps where thin walls meet
     /// (light through walls).
@@ -162,6 +168,20 @@ pub struct VplSettings {
     pub intensity: f32,
 }
 
+/// How a VPL's visibility is found ([`VplSettings::visibility`]).
+#[derive(Reflect, Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum VplVisibility {
+    /// Shadow maps ray-traced on the CPU through the scene snapshot's BVH, one ray per texel, with the
+    /// walks in the background ([`generate::traced_shadow_maps`]). Every wall blocks light whatever its
+    /// thickness. The default.
+    #[default]
+    Traced,
+    /// Imperfect shadow maps (Ritschel et al. 2008), the paper's: each VPL splats `ism_points` scene
+    /// points on the GPU, then pull-push fills the holes. No CPU rays, but light leaks through walls
+    /// thinner than the gaps between the points and where walls meet (`docs/unseen_rooms.md`).
+    Imperfect,
+}
+
 impl VplSettings {
     /// 64 paths (about 200 VPLs in a room of albedo 0.7), 16² shadow maps of 2048 points, one SSBC step.
     pub const LOW: Self = Self {
@@ -169,6 +189,7 @@ impl VplSettings {
         bounces: 16,
         seed: 0,
         geometry_bound: 0.0,
+        visibility: VplVisibility::Traced,
         ism_resolution: 16,
         ism_points: 2048,
         ism_bias: 0.05,

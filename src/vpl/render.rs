@@ -52,6 +52,9 @@ pub struct VplUniform {
     pub ism_bias: f32,
     pub intensity: f32,
     pub point_radius: f32,
+    /// Multiplies the slope-scaled part of the depth tolerance: 1 for splatted maps, 0 for traced ones
+    /// (they store the far side of the first occluder, which leaves its own surface lit).
+    pub slope_tolerance: f32,
 }
 
 /// `u32` words of one VPL's shadow map and its two pull-push levels.
@@ -180,8 +183,10 @@ pub struct VplGpu {
     ism_resolution: u32,
     points_per_ism: u32,
     uploaded: Option<(u64, u64)>,
-    /// The shadow maps need splatting (new VPLs, points or settings).
+    /// The shadow maps need splatting (new VPLs, points or settings, and no traced maps for them).
     ism_dirty: bool,
+    /// The shadow maps are the set's traced ones (no splat disks: no disk radius in the depth test).
+    traced: bool,
     uniforms: DynamicUniformBuffer<VplUniform>,
     /// Offset of the shadow-map passes' uniform.
     ism_offset: u32,
@@ -259,16 +264,38 @@ fn prepare_vpls(
         }
         gpu.points = Some(storage(&device, "diffuse_gi_vpl_points", bytemuck::cast_slice(&points)));
         let words = (gpu.vpl_count.max(1) as u64) * stride as u64;
-        gpu.ism = Some(device.create_buffer(&BufferDescriptor {
-            label: Some("diffuse_gi_vpl_ism"),
-            size: words * 4,
-            usage: BufferUsages::STORAGE | BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        }));
+        // Traced maps of these VPLs at this side go into level 0 of each VPL's run of words (the gather
+        // reads only level 0); otherwise the maps are splatted.
+        let texels = (side * side) as usize;
+        let traced = set
+            .shadow_maps
+            .as_ref()
+            .filter(|(traced_side, maps)| *traced_side == side && maps.len() == set.vpls.len() * texels && gpu.vpl_count > 0);
+        gpu.ism = Some(match traced {
+            Some((_, maps)) => {
+                let mut words = vec![0u32; words as usize];
+                for (v, map) in maps.chunks(texels).take(gpu.vpl_count as usize).enumerate() {
+                    let at = v * stride as usize;
+                    words[at..at + texels].copy_from_slice(map);
+                }
+                device.create_buffer_with_data(&BufferInitDescriptor {
+                    label: Some("diffuse_gi_vpl_ism"),
+                    contents: bytemuck::cast_slice(&words),
+                    usage: BufferUsages::STORAGE | BufferUsages::COPY_DST,
+                })
+            }
+            None => device.create_buffer(&BufferDescriptor {
+                label: Some("diffuse_gi_vpl_ism"),
+                size: words * 4,
+                usage: BufferUsages::STORAGE | BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            }),
+        });
         gpu.ism_resolution = side;
         gpu.points_per_ism = set.settings.ism_points.min(gpu.point_count.max(1));
         gpu.uploaded = Some(key);
-        gpu.ism_dirty = true;
+        gpu.traced = traced.is_some();
+        gpu.ism_dirty = !gpu.traced;
     }
 
     let base = VplUniform {
@@ -282,7 +309,12 @@ fn prepare_vpls(
         intensity: 1.0,
         // Each of a shadow map's points stands for an equal share of the scene's surface: a disk of this
         // radius.
-        point_radius: (set.surface_area / (std::f32::consts::PI * gpu.points_per_ism.max(1) as f32)).sqrt(),
+        slope_tolerance: if gpu.traced { 0.0 } else { 1.0 },
+        point_radius: if gpu.traced {
+            0.0
+        } else {
+            (set.surface_area / (std::f32::consts::PI * gpu.points_per_ism.max(1) as f32)).sqrt()
+        },
     };
     gpu.uniforms.clear();
     gpu.ism_offset = gpu.uniforms.push(&base);
