@@ -453,11 +453,47 @@ fn band0(sh: &ShRgb) -> f32 {
     lum(sh.coefficients[0]) * BAND0
 }
 
+/// Band-0 irradiance GPU / traced, summed over the hints binned by their distance to the nearest surface
+/// (in cell diagonals, the minimum over 26 rays): whether the field is off near surfaces or everywhere.
+fn report_by_distance(volume: &Volume, scene: &SceneSnapshot) {
+    const EDGES: [f32; 5] = [0.125, 0.25, 0.5, 1.0, f32::INFINITY];
+    let mut bins = [(0.0f64, 0.0f64, 0usize); 5];
+    for (i, h) in volume.hints.iter().enumerate().filter(|(_, h)| h.valid) {
+        let p = volume.centre(volume.coords(i));
+        let nearest = (0..27)
+            .filter(|&k| k != 13)
+            .map(|k| Vec3::new((k % 3) as f32 - 1.0, ((k / 3) % 3) as f32 - 1.0, (k / 9) as f32 - 1.0).normalize())
+            .filter_map(|d| scene.intersect(p, d, 0.0, f32::INFINITY).map(|hit| hit.t))
+            .fold(f32::INFINITY, f32::min)
+            / volume.diagonal;
+        let bin = EDGES.iter().position(|&e| nearest < e).unwrap_or(4);
+        bins[bin].0 += band0(&h.gpu) as f64;
+        bins[bin].1 += band0(&h.sh3) as f64;
+        bins[bin].2 += 1;
+    }
+    let mut lower = 0.0;
+    let cells: Vec<String> = bins
+        .iter()
+        .zip(EDGES)
+        .map(|(&(gpu, traced, n), upper)| {
+            let text = format!("[{lower}, {upper}): {:.3} over {n}", gpu / traced.max(1e-30));
+            lower = upper;
+            text
+        })
+        .collect();
+    println!("band 0 GPU / traced by distance to the nearest surface (cell diagonals): {}", cells.join("; "));
+}
+
 fn report_field(cli: &Cli, volume: &Volume) {
     let valid: Vec<(usize, &Hint)> = volume.hints.iter().enumerate().filter(|(_, h)| h.valid).collect();
     let total = |f: &dyn Fn(&Hint) -> f32| valid.iter().map(|(_, h)| f(h) as f64).sum::<f64>();
     let band0_ratio = total(&|h: &Hint| band0(&h.gpu)) / total(&|h: &Hint| band0(&h.sh3));
-    println!("{} valid hints; band-0 irradiance GPU / traced, summed: {band0_ratio:.3}", valid.len());
+    println!(
+        "{} valid hints; band-0 irradiance GPU / traced, summed: {band0_ratio:.3} ({:.4e} / {:.4e})",
+        valid.len(),
+        total(&|h: &Hint| band0(&h.gpu)),
+        total(&|h: &Hint| band0(&h.sh3))
+    );
     let ratios: Vec<f32> = valid.iter().filter(|(_, h)| band0(&h.sh3) > 1e-9).map(|(_, h)| band0(&h.gpu) / band0(&h.sh3)).collect();
     println!("  per hint, quantiles 10/25/50/75/90 %: {}", quantiles(ratios));
     let axes: Vec<String> = (0..6)
@@ -506,6 +542,7 @@ fn run(cli: Cli) -> Result<(), String> {
     };
     let volume = load(&cli, &scene)?;
     report_field(&cli, &volume);
+    report_by_distance(&volume, &scene);
     let Some(dir) = &cli.images else {
         return Ok(());
     };

@@ -24,7 +24,7 @@
 // crosses a surface before reaching x_k. Hints inside solid geometry (validity 0) are skipped.
 
 #import bevy_diffuse_gi::rh_types::{
-    RhVolume, Sh, FIELD_TERMS, SH_FLOATS, PI, sh_add, cell_coords, cell_center_local, local_to_world, world_to_local,
+    RhVolume, FreeExtents, free_extents, Sh, FIELD_TERMS, SH_FLOATS, PI, sh_add, cell_coords, cell_center_local, local_to_world, world_to_local,
     local_to_occupancy, pcg, rand, rand3, finite3,
 }
 #ifdef VOXEL_VISIBILITY
@@ -100,9 +100,17 @@ fn disk(u: vec2<f32>) -> vec2<f32> {
 // from the hint, is occupied too: it lies on the hint's side of a solid at least two voxels thick, or just
 // inside it, where it reads the surface's light. A surface one voxel thick (a thin wall between rooms)
 // has free space beyond: there the receiver might be in the next room, and it is left out.
-fn receiver(cell: vec3<f32>, rng: ptr<function, u32>) -> vec4<f32> {
+//
+// The jitter stays within the hint's free extents (`free_extents`, traced on the CPU against the real
+// surfaces): a hint 4 cm from a wall otherwise put a quarter of its receivers behind the wall's face,
+// inside the wall's voxel layer, where the wall's light cannot reach them (hints next to walls held 0.67
+// of their traced first-bounce light in a generated room, docs/unseen_rooms.md).
+fn receiver(cell: vec3<f32>, free: FreeExtents, rng: ptr<function, u32>) -> vec4<f32> {
     let res = volume.resolution.xyz;
-    let jitter = (rand3(rng) - 0.5) * volume.jitter;
+    let half = 0.5 * volume.jitter;
+    let lo = -min(vec3(half), 0.5 * free.negative);
+    let hi = min(vec3(half), 0.5 * free.positive);
+    let jitter = mix(lo, hi, rand3(rng));
     let y_local = cell_center_local(cell + jitter, res);
 #ifdef VOXEL_VISIBILITY
     if any(jitter != vec3(0.0)) {
@@ -262,6 +270,7 @@ fn inject(@builtin(global_invocation_id) gid: vec3<u32>) {
     var d_max = 0.0;
     var valid = 0.0;
     let inside_solid = hint_albedo[index].a < 0.5;
+    let free = free_extents(hint_albedo[index].a);
     // How far an RSM sample is lifted off its surface before its path is tested: 1.5 occupancy voxels.
     let lift = 1.5 * max(volume.cell.x, max(volume.cell.y, volume.cell.z)) / f32(volume.occupancy_resolution.x / volume.resolution.x);
     for (var l = 0u; l < select(volume.light_count, 0u, inside_solid); l++) {
@@ -290,7 +299,7 @@ fn inject(@builtin(global_invocation_id) gid: vec3<u32>) {
         var light_sh: Sh;
         var receivers = 0.0;
         for (var s = 0u; s < samples; s++) {
-            let receiving = receiver(cell, &rng);
+            let receiving = receiver(cell, free, &rng);
             if receiving.w == 0.0 {
                 continue;
             }
@@ -363,7 +372,7 @@ fn inject(@builtin(global_invocation_id) gid: vec3<u32>) {
     var emitter_sh: Sh;
     var emitter_receivers = 0.0;
     for (var s = 0u; s < emitter_samples; s++) {
-        let receiving = receiver(cell, &rng);
+        let receiving = receiver(cell, free, &rng);
         if receiving.w == 0.0 {
             continue;
         }

@@ -42,7 +42,7 @@ fn trilinear_from(world: vec3<f32>, skip: f32) -> Trilinear {
     var usable: array<f32, 8>;
     let from_voxel = local_to_occupancy(volume, local);
     for (var i = 0u; i < 8u; i++) {
-        usable[i] = albedo[t.cells[i]].a;
+        usable[i] = select(0.0, 1.0, albedo[t.cells[i]].a >= 0.5);
         if volume.occupancy_resolution.w != 0u && usable[i] > 0.0 && t.weights[i] > 0.0 {
             let o = vec3<u32>(i & 1u, (i >> 1u) & 1u, (i >> 2u) & 1u);
             let hint = stencil_hint_occupancy(min(base + o, res - 1u));

@@ -435,7 +435,50 @@ fn hint_valid(snapshot: &SceneSnapshot, world_from_local: Mat4, res: UVec3, c: U
     });
     // Inside: most of the rays that hit anything hit a back face, and most rays hit.
     let inside = hits * 2 > VALIDITY_RAYS && back * 2 > hits;
-    if inside { 0.0 } else { 1.0 }
+    if inside {
+        return 0.0;
+    }
+    // How far the hint's free space reaches along each cell axis, up to half a cell: a surface closer
+    // than that (a wall 4 cm from the hint) bounds where the injection may put its receivers.
+    let mut free = [FREE_STEPS; 6];
+    for (side, extent) in free.iter_mut().enumerate() {
+        let mut axis = Vec3::ZERO;
+        axis[side / 2] = if side % 2 == 0 { -0.5 } else { 0.5 };
+        let half = world_from_local.transform_vector3(axis / res.as_vec3());
+        let length = half.length();
+        if length <= 0.0 {
+            continue;
+        }
+        if let Some(hit) = snapshot.intersect(p, half / length, 0.0, length) {
+            // Rounded down, and a hundredth of a half cell short of the surface.
+            *extent = ((hit.t / length - 0.01).max(0.0) * FREE_STEPS as f32).floor() as u32;
+        }
+    }
+    encode_free_extents(free)
+}
+
+/// Steps of a hint's free extent per half cell (3 bits per side, see [`encode_free_extents`]).
+pub const FREE_STEPS: u32 = 7;
+
+/// Marks a validity value that carries free extents.
+const FREE_MARKER: u32 = 1 << 18;
+
+/// A valid hint's validity value: `1 + m · 2⁻²³` with `m` the six free extents (−x, +x, −y, +y, −z, +z;
+/// 0–[`FREE_STEPS`] steps of half a cell each) in 3 bits apiece plus a marker bit, so that the value stays
+/// in `[1, 2)` and every test of validity (`≥ 0.5`) still holds. `rh_sampling.wgsl`'s `free_extents`
+/// decodes it.
+pub fn encode_free_extents(free: [u32; 6]) -> f32 {
+    let bits = free.iter().enumerate().fold(FREE_MARKER, |m, (i, &e)| m | (e.min(FREE_STEPS) << (3 * i)));
+    f32::from_bits(1.0f32.to_bits() | bits)
+}
+
+/// The six free extents of a validity value of [`encode_free_extents`] (all full for a plain 1).
+pub fn decode_free_extents(validity: f32) -> [u32; 6] {
+    let bits = validity.to_bits() & 0x7f_ffff;
+    if validity < 1.0 || bits & FREE_MARKER == 0 {
+        return [FREE_STEPS; 6];
+    }
+    std::array::from_fn(|i| (bits >> (3 * i)) & 7)
 }
 
 /// Per hint: 1 when it lies outside solid geometry, 0 when most directions first meet the back of a
@@ -540,6 +583,27 @@ pub fn first_hit(occupancy: &[u32], res: UVec3, a: Vec3, b: Vec3, skip_end: f32)
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn free_extents_round_trip_and_stay_valid() {
+        for free in [[0, 7, 3, 3, 1, 6], [7; 6], [0; 6]] {
+            let v = super::encode_free_extents(free);
+            assert!((1.0..2.0).contains(&v), "{v}");
+            assert_eq!(super::decode_free_extents(v), free);
+        }
+        assert_eq!(super::decode_free_extents(1.0), [super::FREE_STEPS; 6]);
+    }
+
+    #[test]
+    fn a_hint_beside_a_wall_keeps_its_receivers_on_its_side() {
+        // cellar: the dividing wall spans x ∈ [−0.1, 0.1]. A 0.4 m cell centred 5 cm from its face.
+        let scene = crate::scenes::cellar_snapshot();
+        let world_from_local = Mat4::from_scale_rotation_translation(Vec3::splat(0.4), bevy::math::Quat::IDENTITY, Vec3::new(0.15, 1.2, 1.0));
+        let v = super::hint_valid(&scene, world_from_local, UVec3::ONE, UVec3::ZERO);
+        let free = super::decode_free_extents(v);
+        // 5 cm of a 20 cm half cell towards the wall (−x): 1 step of 7 (rounded down); free elsewhere.
+        assert_eq!(free, [1, 7, 7, 7, 7, 7], "{v}");
+    }
+
     use super::*;
     use crate::scene::{InputTriangle, SnapshotMaterial};
 
