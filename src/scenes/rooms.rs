@@ -99,6 +99,8 @@ pub struct GeneratedRoom {
     pub light: RoomLight,
     /// The interiors (min, max corner) of the rooms, in order along x.
     pub rooms: Vec<(Vec3, Vec3)>,
+    /// The furniture: kind (`cabinet`, `table`, `column`) and bounds.
+    pub furniture: Vec<(&'static str, Vec3, Vec3)>,
     /// The doors, `doors[i]` between rooms `i` and `i + 1`.
     pub doors: Vec<Door>,
     /// The room the light is in, and the room the camera is in.
@@ -352,7 +354,7 @@ impl GeneratedRoom {
             RoomLight::Spot { position, .. } | RoomLight::Point { position, .. } => keep_out.push((position.xz(), 0.6)),
             _ => {}
         }
-        let mut furniture: Vec<(Vec3, Vec3)> = Vec::new();
+        let mut furniture: Vec<(&'static str, Vec3, Vec3)> = Vec::new();
         for &(lo, hi) in &rooms {
             for _ in 0..rng.random_range(0..=3u32) {
                 let material = palette.len();
@@ -373,11 +375,11 @@ impl GeneratedRoom {
                     let clear = keep_out.iter().all(|&(p, r)| {
                         let nearest = p.clamp(a.xz(), b.xz());
                         nearest.distance(p) > r
-                    }) && furniture.iter().all(|(c, d)| a.xz().cmpgt(d.xz() + 0.1).any() || b.xz().cmplt(c.xz() - 0.1).any());
+                    }) && furniture.iter().all(|(_, c, d)| a.xz().cmpgt(d.xz() + 0.1).any() || b.xz().cmplt(c.xz() - 0.1).any());
                     if !clear {
                         continue;
                     }
-                    furniture.push((a, b));
+                    furniture.push((["cabinet", "table", "column"][kind as usize], a, b));
                     if kind == 1 {
                         // A table: a 4 cm top on four thin legs.
                         let leg = rng.random_range(0.03..0.06f32);
@@ -400,6 +402,7 @@ impl GeneratedRoom {
             light,
             rooms,
             doors,
+            furniture,
             lit_room,
             camera_room,
             wall_thickness: t,
@@ -421,13 +424,18 @@ impl GeneratedRoom {
     pub fn describe(&self) -> String {
         let sizes: Vec<String> = self.rooms.iter().map(|(lo, hi)| format!("{:.1}×{:.1}", hi.x - lo.x, hi.z - lo.z)).collect();
         format!(
-            "{} room(s) {} m, {:.1} m high, {:.0} cm walls, {} light, camera {}",
+            "{} room(s) {} m, {:.1} m high, {:.0} cm walls, {} light, camera {}{}",
             self.rooms.len(),
             sizes.join(" + "),
             self.rooms[0].1.y,
             self.wall_thickness * 100.0,
             self.light.kind(),
-            if self.camera_room == self.lit_room { "in the lit room" } else { "next door" }
+            if self.camera_room == self.lit_room { "in the lit room" } else { "next door" },
+            if self.furniture.is_empty() {
+                String::new()
+            } else {
+                format!(", {}", self.furniture.iter().map(|f| f.0).collect::<Vec<_>>().join(" "))
+            }
         )
     }
 
@@ -712,6 +720,17 @@ mod tests {
                 snapshot.intersect(start, direction, 0.0, f32::INFINITY).is_some_and(|hit| (start + direction * hit.t).y < 0.01)
             });
             assert!(lit.count() > 0, "{}: no sunlight on the lit room's floor", room.name());
+        }
+    }
+}
+#[cfg(test)]
+mod list {
+    #[test]
+    #[ignore]
+    fn list_seeds() {
+        for seed in 0..400 {
+            let r = super::GeneratedRoom::new(seed);
+            println!("{seed}: {}", r.describe());
         }
     }
 }
