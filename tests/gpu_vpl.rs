@@ -78,14 +78,14 @@ fn compensation_adds_light_in_corners_never_removes_it_and_moves_energy_towards_
         );
     }
 
-    // The energy ratio against the ground truth moves towards 1 with each step (measured on lavapipe:
-    // 0.952, 0.970, 0.971, 0.971 for 0–3 steps).
+    // The energy ratio against the ground truth moves towards 1 with each step, or stays within 1 % of
+    // it (measured on lavapipe with traced shadow maps: 0.977, 0.999, 1.002, 1.004 for 0–3 steps).
     let energies: Vec<f64> = steps.iter().map(|i| metrics::compare(i, &truth).expect("comparable").energy_ratio).collect();
     eprintln!("{test}: energy by SSBC steps {energies:?}");
     for k in 1..energies.len() {
         check(
             test,
-            (1.0 - energies[k]).abs() <= (1.0 - energies[k - 1]).abs() + 1e-4,
+            (1.0 - energies[k]).abs() <= (1.0 - energies[k - 1]).abs().max(0.01) + 1e-4,
             &steps[k],
             Some(&truth),
             format!("step {k} moved the energy away from 1: {energies:?}"),
@@ -99,9 +99,9 @@ fn cornell_vpl_bleeds_colour_and_matches_the_ground_truth() {
     let test = "vpl_cornell";
     let truth = ground_truth("cornell.exr");
     for (name, preset, block_limit, energy) in [
-        // Measured on lavapipe: medium 0.184 / 0.925, high 0.163 / 0.957 (docs/vpl_ssbc.md).
-        ("medium", VplSettings::MEDIUM, 0.21, 0.90..=0.98),
-        ("high", VplSettings::HIGH, 0.19, 0.93..=1.01),
+        // Measured on lavapipe with traced shadow maps: medium 0.142 / 0.996 (docs/vpl_ssbc.md).
+        ("medium", VplSettings::MEDIUM, 0.17, 0.95..=1.05),
+        ("high", VplSettings::HIGH, 0.17, 0.95..=1.05),
     ] {
         let image = vpl(StandardScene::Cornell, preset);
         check(test, !image.has_non_finite(), &image, Some(&truth), "NaN or Inf".into());
@@ -128,12 +128,13 @@ fn cellar_vpl_keeps_the_light_in_its_room() {
     let truth = ground_truth("cellar.exr");
     let image = vpl(StandardScene::Cellar, VplSettings::MEDIUM);
     check(test, !image.has_non_finite(), &image, Some(&truth), "NaN or Inf".into());
-    // Room B's side of the dividing wall matches the truth (measured 0.94×). Where the wall meets the
-    // ceiling the imperfect shadow maps let some of room A's light through (measured 1.9×, a known
-    // issue of the method: docs/vpl_ssbc.md); a missing visibility test would give several times more.
+    // Room B's side of the dividing wall matches the truth, and so does the top of the wall where it
+    // meets the ceiling (imperfect shadow maps let room A's light through there: 1.9× the truth, 2.2×
+    // with traced maps and the imperfect maps' 5 % depth tolerance). A missing visibility test would
+    // give several times more.
     for (region, limit) in [
         (Region::new("dividing wall, room B side", 20, 80, 120, 140), 1.3),
-        (Region::new("top of the dividing wall", 10, 30, 120, 50), 2.2),
+        (Region::new("top of the dividing wall", 10, 30, 120, 50), 1.5),
     ] {
         let (a, t) = (luminance(region.mean(test, &image)), luminance(region.mean(test, &truth)));
         check(test, a < limit * t, &image, Some(&truth), format!("{}: {a:.3} against {t:.3}: light leaks", region.name));
@@ -159,16 +160,17 @@ fn sponza_like_vpl_lights_the_atrium_from_the_sun_patch() {
     let wall = Region::new("far wall", 100, 60, 150, 100);
     let (a, t) = (luminance(wall.mean(test, &image)), luminance(wall.mean(test, &truth)));
     check(test, (0.6..1.5).contains(&(a / t)), &image, Some(&truth), format!("far wall: {a:.3} against {t:.3}"));
-    // Measured on lavapipe: block 0.289, energy 0.915, 5.2 % of blocks more than 50 % off.
+    // Measured on lavapipe with traced shadow maps: block 0.209, energy 1.062, 2 % of blocks more than
+    // 50 % off.
     let m = metrics::compare(&image, &truth).expect("comparable images");
     eprintln!("{test}: block {:.4}, energy {:.4}, off {:.3}", m.block_relative_rmse, m.energy_ratio, m.blocks_over_half_off);
     check(
         test,
-        m.block_relative_rmse <= 0.33 && (0.86..=0.97).contains(&m.energy_ratio) && m.blocks_over_half_off <= 0.08,
+        m.block_relative_rmse <= 0.25 && (0.95..=1.12).contains(&m.energy_ratio) && m.blocks_over_half_off <= 0.05,
         &image,
         Some(&truth),
         format!(
-            "sponza_like, medium: block {:.4} (want ≤ 0.33), energy {:.4} (want 0.86–0.97), {:.1} % of blocks off (want ≤ 8 %)",
+            "sponza_like, medium: block {:.4} (want ≤ 0.25), energy {:.4} (want 0.95–1.12), {:.1} % of blocks off (want ≤ 5 %)",
             m.block_relative_rmse,
             m.energy_ratio,
             100.0 * m.blocks_over_half_off
@@ -176,8 +178,8 @@ fn sponza_like_vpl_lights_the_atrium_from_the_sun_patch() {
     );
 }
 
-/// Measured on lavapipe: 0.427 (energy 0.988), see `docs/vpl_ssbc.md`.
-const CELLAR_BLOCK_LIMIT: f64 = 0.47;
+/// Measured on lavapipe with traced shadow maps: 0.314 (energy 1.001), see `docs/vpl_ssbc.md`.
+const CELLAR_BLOCK_LIMIT: f64 = 0.36;
 
 #[test]
 fn switching_the_method_at_run_time_changes_the_image_and_leaves_no_stale_light() {

@@ -145,10 +145,11 @@ pub struct VplSettings {
     /// Too few make coarse disks that shadow nearby surfaces too much and leave gaps where thin walls meet
     /// (light through walls).
     pub ism_points: u32,
-    /// Depth tolerance of the shadow map test, as a fraction of the distance to the VPL, on top of a
-    /// slope-scaled part that grows with the receiver's tilt (see `gather.wgsl`). Range 0–1; default
-    /// 0.05. Smaller values shadow more surfaces wrongly (self-shadowing acne); larger ones let
-    /// light through thin occluders.
+    /// [`VplVisibility::Imperfect`] only: depth tolerance of the shadow map test, as a fraction of the
+    /// distance to the VPL, on top of a slope-scaled part that grows with the receiver's tilt (see
+    /// `gather.wgsl`). Range 0–1; default 0.05. Smaller values shadow more surfaces wrongly
+    /// (self-shadowing acne); larger ones let light through thin occluders. Traced maps use
+    /// [`TRACED_DEPTH_BIAS`](render::TRACED_DEPTH_BIAS) and no slope term.
     pub ism_bias: f32,
     /// Screen-space bias compensation steps (terms of Eq. 3 after the first): 0 is the clamped solution
     /// alone. Range 0–3; medium 1. Cost: each step is one hierarchical gather per pixel.
