@@ -97,7 +97,14 @@ fn bounce(
             }
             var rho = vec3(1.0);
             if volume.albedo_volume != 0u {
-                rho = albedo_at(trilinear(hit));
+                // The albedo of the cells around the reflector, those behind a surface as seen from it
+                // left out (the next room's wall colour beyond a thin wall). Where every one is (a hit
+                // in a corner, on a voxel face whose own cells lie behind the wall), the cells' albedo
+                // regardless of visibility: this lookup used to find nothing there and reflect nothing,
+                // which lost a tenth of every bounce's light in a generated room (room_3's field 0.89 →
+                // 1.00 of the traced one).
+                let at_hit = trilinear(hit);
+                rho = select(albedo_at(trilinear_from(hit, 1.0e9)), albedo_at(at_hit), at_hit.found);
             }
             // Every surface between the lookup point and a hint blocks it: a ray grazing a wall next to a
             // corner puts the point within a voxel of that wall, and skipping it would read the next
