@@ -101,6 +101,11 @@
 //!     (17× the truth on `open_field`'s ground near the camera);
 //!   - **near-window sampling** of the RSMs (above): a hint 5 cm from `cellar`'s lit wall read a tenth of
 //!     its traced irradiance, hints beside lit walls 0.71 of it (0.94 now);
+//!   - every extra bounce's **reflector has an albedo**: the lookup of the albedo at a hit on a voxel face
+//!     in a corner found no cell in front of the surface and reflected nothing, a tenth of every bounce
+//!     in room_3 (bounce-to-bounce ratio 0.35 against the traced 0.41); it now falls back to the cells'
+//!     albedo regardless of visibility (room_3's field 0.89 → 1.00 of the traced, `cellar` 0.199 →
+//!     0.168, `cornell` 0.119 → 0.121);
 //!   - injection **receivers within the hint's free extents**: the CPU traces, with each hint's validity,
 //!     how far its cell is free of surfaces along each axis (up to half a cell; packed into the validity
 //!     value, [`voxelize::encode_free_extents`]) and the jitter stays within it. A hint 4 cm from a wall
@@ -143,8 +148,8 @@
 //! mesh re-voxelises only the cells its old and new bounds touch ([`voxelize::voxelize_update`]).
 //!
 //! * **Game scale** (`docs/radiance_hints.md`, § game scale and § reconstruction; lavapipe, 256², default
-//!   settings at half resolution, block relative RMSE / energy): `cornell` 0.119 / 1.06, `cellar`
-//!   0.200 / 0.92, `sponza_like` 0.176 / 1.01, `open_field` 0.297 / 0.97 (60 m, 0.65 m cells), the
+//!   settings at half resolution, block relative RMSE / energy): `cornell` 0.121 / 1.06, `cellar`
+//!   0.168 / 0.96, `sponza_like` 0.172 / 1.01 (since issue #32; the rest before it), `open_field` 0.297 / 0.97 (60 m, 0.65 m cells), the
 //!   point-lit `dynamic` 0.112 / 1.05, `emissive_panel` 0.299 / 1.12.
 //! * **Per pixel** (`docs/radiance_hints.md`, § reconstruction): a still `cornell` frame at 512² on
 //!   lavapipe costs 1.53× the frame without GI with the default half-resolution reconstruction
@@ -155,13 +160,12 @@
 //!   45 MiB).
 //!
 //! # Known issues
-//! * **Light lost in the extra bounces** (issue #32): on the generated room_3 each voxel-march bounce
-//!   carries about 0.85 of the traced bounce-to-bounce ratio (0.35 against 0.41 for the first extra bounce,
-//!   measured with `rh_volume_check --bounces N`), so rooms of bright walls, where most light bounced
-//!   twice or more, get 0.8–0.9 of their light. Not yet traced to its cause (the reflector's light read
-//!   half a cell off its face, the albedo volume's cell means, the SH order 2 irradiance).
-//! * A room lit only through a door gets too little (room_136's camera room 0.82 of its light, room_5
-//!   0.61; `docs/unseen_rooms.md`).
+//! * **A room lit only through a door gets too little** (issue #32; `docs/unseen_rooms.md`): room_136's
+//!   camera room 0.82 of its light, room_5's 0.61. `rh_volume_check --split-x` on room_5: the lit room's
+//!   field is 0.98 of the traced one, the camera room's 0.59, and already 0.50 for the first bounce
+//!   alone, so the injection's paths through the door lose half their light. The first suspect is the
+//!   conservative voxelisation, which narrows an opening by up to a voxel on every side (a 0.8 m door in a
+//!   28 cm wall by a third or more for oblique paths); not yet measured.
 //! * Cells must be smaller than the rooms they light and under about twice the thickness of the walls
 //!   that must stop light. The adaptive default caps them at 0.35 m up to about 30 × 6 × 30 m; beyond
 //!   that the cells grow (0.65 m over 60 m, where `open_field`'s 30 cm free-standing wall has both faces
