@@ -723,14 +723,3 @@ mod tests {
         }
     }
 }
-#[cfg(test)]
-mod list {
-    #[test]
-    #[ignore]
-    fn list_seeds() {
-        for seed in 0..400 {
-            let r = super::GeneratedRoom::new(seed);
-            println!("{seed}: {}", r.describe());
-        }
-    }
-}
