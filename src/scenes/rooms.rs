@@ -167,7 +167,7 @@ fn albedo(rng: &mut Pcg32) -> Vec3 {
 impl GeneratedRoom {
     /// The room of `seed` (the same on every machine: a PCG32 stream).
     pub fn new(seed: u64) -> Self {
-        let mut rng = Pcg32::seed_from_u64(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ 0x5EED_0F_2032);
+        let mut rng = Pcg32::seed_from_u64(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ 0x005E_ED0F_2032);
         let count = rng.random_range(1..=3usize);
         let height = rng.random_range(2.4..6.0f32);
         let depth = rng.random_range(2.0..12.0f32);
