@@ -205,9 +205,9 @@ fn finite3(v: vec3<f32>) -> vec3<f32> {
     return select(vec3(0.0), v, ok);
 }
 
-// The free extents of a valid hint (`voxelize.rs`, `encode_free_extents`): how far its cell is free of
-// surfaces along −x, +x, −y, +y, −z, +z, as fractions of half a cell (0 to 1). A plain validity of 1
-// (no extents stored) is free all round.
+// The free extents of a valid hint (`voxelize.rs`, `encode_free_extents`, whose constants come in as the
+// RH_FREE_* shader defs): how far its cell is free of surfaces along −x, +x, −y, +y, −z, +z, as fractions
+// of half a cell (0 to 1). A plain validity of 1 (no extents stored) is free all round.
 struct FreeExtents {
     negative: vec3<f32>,
     positive: vec3<f32>,
@@ -215,10 +215,13 @@ struct FreeExtents {
 
 fn free_extents(validity: f32) -> FreeExtents {
     let bits = bitcast<u32>(validity) & 0x7fffffu;
-    if validity < 1.0 || (bits & (1u << 18u)) == 0u {
+    if validity < 1.0 || (bits & (1u << #{RH_FREE_MARKER_BIT}u)) == 0u {
         return FreeExtents(vec3(1.0), vec3(1.0));
     }
-    let e = vec3(bits & 7u, (bits >> 6u) & 7u, (bits >> 12u) & 7u);
-    let f = vec3((bits >> 3u) & 7u, (bits >> 9u) & 7u, (bits >> 15u) & 7u);
-    return FreeExtents(vec3<f32>(e) / 7.0, vec3<f32>(f) / 7.0);
+    let steps = #{RH_FREE_STEPS}u;
+    let w = #{RH_FREE_BITS}u;
+    // Sides in order −x, +x, −y, +y, −z, +z.
+    let negative = vec3(bits, bits >> (2u * w), bits >> (4u * w)) & vec3(steps);
+    let positive = vec3(bits >> w, bits >> (3u * w), bits >> (5u * w)) & vec3(steps);
+    return FreeExtents(vec3<f32>(negative) / f32(steps), vec3<f32>(positive) / f32(steps));
 }

@@ -276,6 +276,10 @@ fn sh_defs(order: ShOrder) -> Vec<ShaderDefVal> {
     let mut defs = crate::shared_shader_defs();
     defs.push(ShaderDefVal::UInt("SH_COEFS".into(), order.coefficients() as u32));
     defs.push(ShaderDefVal::UInt("FIELD_TERMS".into(), field_terms(order) as u32));
+    // The free extents packed into a hint's validity (`voxelize::encode_free_extents`).
+    defs.push(ShaderDefVal::UInt("RH_FREE_BITS".into(), super::voxelize::FREE_BITS));
+    defs.push(ShaderDefVal::UInt("RH_FREE_STEPS".into(), super::voxelize::FREE_STEPS));
+    defs.push(ShaderDefVal::UInt("RH_FREE_MARKER_BIT".into(), super::voxelize::FREE_MARKER_BIT));
     defs
 }
 

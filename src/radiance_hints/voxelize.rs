@@ -457,18 +457,21 @@ fn hint_valid(snapshot: &SceneSnapshot, world_from_local: Mat4, res: UVec3, c: U
     encode_free_extents(free)
 }
 
-/// Steps of a hint's free extent per half cell (3 bits per side, see [`encode_free_extents`]).
-pub const FREE_STEPS: u32 = 7;
-
-/// Marks a validity value that carries free extents.
-const FREE_MARKER: u32 = 1 << 18;
+/// Bits per side of a hint's free extent (see [`encode_free_extents`]); `RH_FREE_BITS` in WGSL.
+pub const FREE_BITS: u32 = 3;
+/// Steps of a hint's free extent per half cell; `RH_FREE_STEPS` in WGSL.
+pub const FREE_STEPS: u32 = (1 << FREE_BITS) - 1;
+/// The bit that marks a validity value carrying free extents (after the six sides' bits);
+/// `RH_FREE_MARKER_BIT` in WGSL.
+pub const FREE_MARKER_BIT: u32 = 6 * FREE_BITS;
+const FREE_MARKER: u32 = 1 << FREE_MARKER_BIT;
 
 /// A valid hint's validity value: `1 + m · 2⁻²³` with `m` the six free extents (−x, +x, −y, +y, −z, +z;
-/// 0–[`FREE_STEPS`] steps of half a cell each) in 3 bits apiece plus a marker bit, so that the value stays
-/// in `[1, 2)` and every test of validity (`≥ 0.5`) still holds. `rh_sampling.wgsl`'s `free_extents`
-/// decodes it.
+/// 0–[`FREE_STEPS`] steps of half a cell each) in [`FREE_BITS`] bits apiece plus a marker bit, so that the
+/// value stays in `[1, 2)` and every test of validity (`≥ 0.5`) still holds. `rh_types.wgsl`'s
+/// `free_extents` decodes it, with these constants as shader defs.
 pub fn encode_free_extents(free: [u32; 6]) -> f32 {
-    let bits = free.iter().enumerate().fold(FREE_MARKER, |m, (i, &e)| m | (e.min(FREE_STEPS) << (3 * i)));
+    let bits = free.iter().enumerate().fold(FREE_MARKER, |m, (i, &e)| m | (e.min(FREE_STEPS) << (FREE_BITS * i as u32)));
     f32::from_bits(1.0f32.to_bits() | bits)
 }
 
@@ -478,7 +481,7 @@ pub fn decode_free_extents(validity: f32) -> [u32; 6] {
     if validity < 1.0 || bits & FREE_MARKER == 0 {
         return [FREE_STEPS; 6];
     }
-    std::array::from_fn(|i| (bits >> (3 * i)) & 7)
+    std::array::from_fn(|i| (bits >> (FREE_BITS * i as u32)) & FREE_STEPS)
 }
 
 /// Per hint: 1 when it lies outside solid geometry, 0 when most directions first meet the back of a
