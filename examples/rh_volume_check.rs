@@ -312,11 +312,10 @@ fn generated_room(scene: &str) -> Option<scenes::GeneratedRoom> {
 
 fn camera(scene: &str) -> ReferenceCamera {
     use scenes::*;
+    if let Some(room) = generated_room(scene) {
+        return room.reference_camera();
+    }
     let (position, target, fov, ev100) = match scene {
-        s if generated_room(s).is_some() => {
-            let room = generated_room(s).expect("a room");
-            (room.camera_position, room.camera_target, room.fov_degrees, room.ev100)
-        }
         "cornell" => (cornell::CAMERA_POSITION, Vec3::ZERO, cornell::FOV_Y_DEGREES, CORNELL_EV100),
         "cellar" => (cellar::CAMERA_POSITION, cellar::CAMERA_TARGET, cellar::FOV_Y_DEGREES, CELLAR_EV100),
         "sponza_like" => (sponza_like::CAMERA_POSITION, sponza_like::CAMERA_TARGET, sponza_like::FOV_Y_DEGREES, SPONZA_EV100),
@@ -534,7 +533,7 @@ fn report_field(cli: &Cli, volume: &Volume) {
 
 fn run(cli: Cli) -> Result<(), String> {
     let scene = match cli.scene.as_str() {
-        s if generated_room(s).is_some() => generated_room(s).expect("a room").snapshot(),
+        _ if let Some(room) = generated_room(&cli.scene) => room.snapshot(),
         "cornell" => scenes::cornell_snapshot(),
         "cellar" => scenes::cellar_snapshot(),
         "sponza_like" => scenes::sponza_like_snapshot(),

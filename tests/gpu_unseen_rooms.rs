@@ -11,13 +11,11 @@
 
 mod common;
 
-use bevy::math::{Quat, UVec2, Vec3};
-use bevy::prelude::Transform;
+use bevy::math::UVec2;
 use bevy_diffuse_gi::camera::GiMethod;
 use bevy_diffuse_gi::hdr_image::HdrImage;
 use bevy_diffuse_gi::headless::{HeadlessMethod, HeadlessOptions};
 use bevy_diffuse_gi::metrics;
-use bevy_diffuse_gi::reference::{CameraProjection, ReferenceCamera};
 use bevy_diffuse_gi::scenes::{GeneratedRoom, StandardScene};
 use common::{check, render};
 
@@ -61,13 +59,7 @@ fn camera_room_energy(test: &str, seed: u64, method: GiMethod) -> f64 {
 /// furniture or anything through a door): traced through the room's CPU snapshot.
 fn wall_pixels(room: &GeneratedRoom) -> Vec<bool> {
     let snapshot = room.snapshot();
-    let rotation: Quat = Transform::from_translation(room.camera_position).looking_at(room.camera_target, Vec3::Y).rotation;
-    let camera = ReferenceCamera {
-        position: room.camera_position,
-        rotation,
-        projection: CameraProjection::Perspective { fov_y: room.fov_degrees.to_radians() },
-        exposure: 1.0,
-    };
+    let camera = room.reference_camera();
     let (lo, hi) = room.camera_room_bounds();
     let doors = room.through_doors(SIZE, SIZE);
     let mut out = vec![false; (SIZE * SIZE) as usize];

@@ -448,18 +448,13 @@ impl GeneratedRoom {
     /// the camera's room into another room: what the camera sees of the rest of the scene. Every other
     /// pixel sees the camera's own room (or the dark outside).
     pub fn through_doors(&self, width: u32, height: u32) -> Vec<bool> {
-        let forward = (self.camera_target - self.camera_position).normalize();
-        let right = forward.cross(Vec3::Y).normalize();
-        let up = right.cross(forward);
-        let tan = (self.fov_degrees.to_radians() * 0.5).tan();
-        let aspect = width as f32 / height as f32;
+        let camera = self.reference_camera();
         // The doors of the camera's room.
         let doors: Vec<Door> = (0..self.doors.len()).filter(|&i| i == self.camera_room || i + 1 == self.camera_room).map(|i| self.doors[i]).collect();
         let mut out = vec![false; (width * height) as usize];
         for y in 0..height {
             for x in 0..width {
-                let ndc = Vec2::new((x as f32 + 0.5) / width as f32 * 2.0 - 1.0, 1.0 - (y as f32 + 0.5) / height as f32 * 2.0);
-                let d = forward + right * ndc.x * tan * aspect + up * ndc.y * tan;
+                let (_, d) = camera.ray(x as f32 + 0.5, y as f32 + 0.5, width, height);
                 out[(y * width + x) as usize] = doors.iter().any(|door| {
                     let s = (door.x - self.camera_position.x) / d.x;
                     let p = self.camera_position + d * s;
@@ -468,6 +463,17 @@ impl GeneratedRoom {
             }
         }
         out
+    }
+
+    /// The scene camera as the path tracer sees it (position, orientation, field of view, exposure), for
+    /// tools and tests that trace the room without Bevy.
+    pub fn reference_camera(&self) -> crate::reference::ReferenceCamera {
+        crate::reference::ReferenceCamera {
+            position: self.camera_position,
+            rotation: Transform::from_translation(self.camera_position).looking_at(self.camera_target, Vec3::Y).rotation,
+            projection: crate::reference::CameraProjection::Perspective { fov_y: self.fov_degrees.to_radians() },
+            exposure: bevy::camera::Exposure { ev100: self.ev100 }.exposure(),
+        }
     }
 
     /// `Σ image / Σ truth` over the pixels that see the camera's own room (not [`Self::through_doors`])
@@ -513,7 +519,7 @@ impl GeneratedRoom {
         (luminance / (0.3 * 1.2)).max(1e-6).log2().clamp(-16.0, 24.0)
     }
 
-    /// The light as Bevy components (with a [`GiLight`]); `None` for the emissive panel (a mesh).
+    /// Spawns the light: a Bevy light with a [`GiLight`], or for the emissive panel a glowing mesh.
     fn spawn_light(&self, commands: &mut Commands, meshes: &mut Assets<Mesh>, materials: &mut Assets<StandardMaterial>) {
         let range = self.light_range();
         match self.light {
