@@ -29,9 +29,7 @@ fn main() -> ExitCode {
 }
 
 fn average(images: &[&HdrImage]) -> Result<HdrImage, String> {
-    let weight = 1.0 / images.len() as f32;
-    let weighted: Vec<(&HdrImage, f32)> = images.iter().map(|i| (*i, weight)).collect();
-    HdrImage::weighted_sum(&weighted).map_err(|e| e.to_string())
+    HdrImage::average(images).map_err(|e| e.to_string())
 }
 
 /// The ground-truth tool's command line: every flag of the headless renderer plus `--seeds`.

@@ -101,8 +101,7 @@ fn trace_truth(seed: u64, device: &mut String) -> Result<(), String> {
     let started = std::time::Instant::now();
     let average = |images: &[HdrImage], pick: &dyn Fn(usize) -> bool| {
         let chosen: Vec<&HdrImage> = images.iter().enumerate().filter(|(i, _)| pick(*i)).map(|(_, im)| im).collect();
-        let w = 1.0 / chosen.len() as f32;
-        HdrImage::weighted_sum(&chosen.iter().map(|im| (*im, w)).collect::<Vec<_>>()).map_err(|e| e.to_string())
+        HdrImage::average(&chosen).map_err(|e| e.to_string())
     };
     let mut noise = f64::INFINITY;
     for k in 0..TRUTH_SEEDS.1 {
@@ -363,21 +362,13 @@ fn write_png(image: &HdrImage, path: &Path, scale: f32) -> Result<(), String> {
     image.write_png_tonemapped(path, scale).map_err(|e| format!("{}: {e}", path.display()))
 }
 
-/// `images` side by side, tonemapped as `tonemap` does (scale, Reinhard, sRGB), each pixel `zoom`² pixels.
+/// `images` side by side, tonemapped alike ([`HdrImage::tonemapped`]), each pixel `zoom`² pixels.
 fn strip(images: &[&HdrImage], scale: f32, zoom: u32) -> image::RgbImage {
-    let (w, h) = (images[0].width, images[0].height);
-    let mut out = image::RgbImage::new(w * zoom * images.len() as u32, h * zoom);
+    let (w, h) = (images[0].width * zoom, images[0].height * zoom);
+    let mut out = image::RgbImage::new(w * images.len() as u32, h);
     for (k, im) in images.iter().enumerate() {
-        for y in 0..h * zoom {
-            for x in 0..w * zoom {
-                let p = im.get(x / zoom, y / zoom);
-                let c = |v: f32| {
-                    let v = (v * scale).max(0.0);
-                    (bevy_diffuse_gi::hdr_image::linear_to_srgb(v / (1.0 + v)) * 255.0 + 0.5) as u8
-                };
-                out.put_pixel(k as u32 * w * zoom + x, y, image::Rgb([c(p[0]), c(p[1]), c(p[2])]));
-            }
-        }
+        let zoomed = image::imageops::resize(&im.tonemapped(scale), w, h, image::imageops::FilterType::Nearest);
+        image::imageops::replace(&mut out, &zoomed, (k as u32 * w) as i64, 0);
     }
     out
 }

@@ -128,6 +128,13 @@ impl HdrImage {
         Ok(out)
     }
 
+    /// The texel-wise mean of `images` (all the same size): the average of path-traced renders of
+    /// different seeds.
+    pub fn average(images: &[&HdrImage]) -> Result<HdrImage, HdrImageError> {
+        let weight = 1.0 / images.len().max(1) as f32;
+        Self::weighted_sum(&images.iter().map(|image| (*image, weight)).collect::<Vec<_>>())
+    }
+
     /// Per-pixel `self − other` on RGB, keeping `self`'s coverage.
     pub fn subtract(&self, other: &HdrImage) -> Result<HdrImage, HdrImageError> {
         check_same_size(self, other)?;
@@ -167,10 +174,8 @@ impl HdrImage {
             .map_err(|e| HdrImageError::Io(path.to_owned(), e.to_string()))
     }
 
-    /// Writes an 8-bit sRGB PNG after Reinhard tonemapping `x / (1 + x)` of `scale · rgb`, for looking at.
-    pub fn write_png_tonemapped(&self, path: impl AsRef<Path>, scale: f32) -> Result<(), HdrImageError> {
-        let path = path.as_ref();
-        create_parent(path)?;
+    /// An 8-bit sRGB image after Reinhard tonemapping `x / (1 + x)` of `scale · rgb`, for looking at.
+    pub fn tonemapped(&self, scale: f32) -> image::RgbImage {
         let mut out = image::RgbImage::new(self.width, self.height);
         for (o, p) in out.pixels_mut().zip(&self.pixels) {
             for c in 0..3 {
@@ -179,8 +184,14 @@ impl HdrImage {
                 o[c] = (linear_to_srgb(v) * 255.0 + 0.5) as u8;
             }
         }
-        out.save(path)
-            .map_err(|e| HdrImageError::Io(path.to_owned(), e.to_string()))
+        out
+    }
+
+    /// Writes [`Self::tonemapped`] as a PNG.
+    pub fn write_png_tonemapped(&self, path: impl AsRef<Path>, scale: f32) -> Result<(), HdrImageError> {
+        let path = path.as_ref();
+        create_parent(path)?;
+        self.tonemapped(scale).save(path).map_err(|e| HdrImageError::Io(path.to_owned(), e.to_string()))
     }
 }
 
