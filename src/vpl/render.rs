@@ -315,9 +315,9 @@ fn prepare_vpls(
         geometry_bound: set.automatic_bound,
         ism_bias: if gpu.traced { TRACED_DEPTH_BIAS } else { set.settings.ism_bias },
         intensity: 1.0,
-        // Each of a shadow map's points stands for an equal share of the scene's surface: a disk of this
-        // radius.
         slope_tolerance: if gpu.traced { 0.0 } else { 1.0 },
+        // Each of a splatted shadow map's points stands for an equal share of the scene's surface: a disk
+        // of this radius.
         point_radius: if gpu.traced {
             0.0
         } else {
