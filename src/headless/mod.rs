@@ -419,6 +419,7 @@ fn drive(
     radiosity: Res<crate::radiosity::RadiosityActivity>,
     photon_grid: Res<crate::photon_grid::PhotonGridActivity>,
     vpls: Res<crate::vpl::VplSet>,
+    (device, warnings): (Option<Res<bevy::render::renderer::RenderDevice>>, Option<Res<crate::DiffuseGiWarnings>>),
 ) {
     let finish = |headless: &mut Headless, exit: &mut MessageWriter<AppExit>, error: Option<String>| {
         let failed = error.is_some();
@@ -551,6 +552,11 @@ fn drive(
                 headless.frame_starts.windows(2).map(|w| (w[1] - w[0]).as_secs_f64() * 1e3).collect();
             map.insert("frame_ms".into(), json!(intervals));
             map.insert("main_thread_ms".into(), json!(headless.main_thread_ms));
+            // Every live GPU allocation, each counted once (the allocator's own report; `null` where the
+            // backend keeps none): a method's memory is this minus the same frame's without GI.
+            let allocated = device.as_ref().and_then(|d| d.wgpu_device().generate_allocator_report());
+            map.insert("gpu_allocated_bytes".into(), json!(allocated.map(|r| r.total_allocated_bytes)));
+            map.insert("warnings".into(), json!(warnings.as_ref().map_or(Vec::new(), |w| w.messages.clone())));
             if headless.options.wait_background.is_some() {
                 map.insert("background_wait_frames".into(), json!(headless.background_wait_frames));
                 map.insert("background_timed_out".into(), json!(headless.background_timed_out));
@@ -564,6 +570,13 @@ fn drive(
                             "solves": radiosity.solves, "bounces_run": t.bounces_run, "busy": radiosity.busy,
                             "update_elements_ms": t.update_elements_ms, "create_links_ms": t.create_links_ms,
                             "refine_push_ms": t.refine_push_ms, "illumination_ms": t.illumination_ms }),
+                );
+            }
+            if headless.options.method == HeadlessMethod::Gi(crate::camera::GiMethod::Vpl) {
+                map.insert(
+                    "vpl".into(),
+                    json!({ "vpls": vpls.vpls.len(), "points": vpls.points.len(), "busy": vpls.busy,
+                            "last_walk_ms": vpls.last_walk_ms }),
                 );
             }
             if headless.options.method == HeadlessMethod::Gi(crate::camera::GiMethod::PhotonGrid) {

@@ -49,6 +49,9 @@ pub struct VplSet {
     pub shadow_maps: Option<(u32, Arc<Vec<u32>>)>,
     /// Whether the set is not yet the one of the scene as it is now (a walk runs or is due).
     pub busy: bool,
+    /// How long the last walk that changed the set took on its background thread (pilot rays, VPLs,
+    /// points and traced shadow maps, whichever it redid), milliseconds.
+    pub last_walk_ms: f32,
 }
 
 /// The main-world side of the walks: the running walk and the caches it keeps between runs.
@@ -106,6 +109,8 @@ struct Walked {
     points: Option<Vec<IsmPoint>>,
     /// New traced shadow maps (or none, for imperfect ones), when they were redone.
     maps: Option<Option<(u32, Arc<Vec<u32>>)>>,
+    /// The walk's time on its thread, milliseconds.
+    ms: f32,
 }
 
 /// The settings of the first active camera that uses the VPL method, if any.
@@ -149,7 +154,10 @@ pub(crate) fn update_vpls(
 
     // 1. A finished walk: its VPLs and points replace the set's.
     if let Some((_, walked)) = walks.job.poll() {
-        let Walked { caches, vpls, points, maps } = walked;
+        let Walked { caches, vpls, points, maps, ms } = walked;
+        if vpls.is_some() || points.is_some() || maps.is_some() {
+            set.last_walk_ms = ms;
+        }
         walks.pilots = caches.pilots.clone();
         walks.caches = Some(caches);
         if let Some((vpls, area)) = vpls {
@@ -200,8 +208,9 @@ pub(crate) fn update_vpls(
         let snapshot = snapshot.clone();
         let walk_key = key.clone();
         walks.job.start(key.clone(), move || {
+            let started = std::time::Instant::now();
             let (vpls, points, maps) = walk_scene(&mut caches, &snapshot, &walk_key, &positions);
-            Walked { caches, vpls, points, maps }
+            Walked { caches, vpls, points, maps, ms: started.elapsed().as_secs_f32() * 1000.0 }
         });
     }
     // Only the shadow maps' size and kind are baked into the set; gather and SSBC fields are per view.
