@@ -113,9 +113,14 @@ fn update_snapshot_geometry(
     mut material_events: MessageReader<AssetEvent<StandardMaterial>>,
     mut image_events: MessageReader<AssetEvent<Image>>,
     assets: SnapshotAssets,
+    (mut warned, mut warnings): (Local<BadInputWarned>, Option<ResMut<crate::DiffuseGiWarnings>>),
 ) {
     let start = std::time::Instant::now();
     let cache = &mut *cache;
+    let mut warn_bad = |message: String| match warnings.as_deref_mut() {
+        Some(warnings) => crate::gi_warning(warnings, message),
+        None => warn!("{message}"),
+    };
     let mut dirty: HashSet<Entity> = HashSet::default();
     // A new (or replaced, or externally edited) snapshot is built from scratch.
     if snapshot.is_added() || snapshot.geometry_generation != cache.generation || cache.generation == 0 {
@@ -187,6 +192,11 @@ fn update_snapshot_geometry(
     for id in &refreshed_materials {
         let slot = cache.materials[id];
         if let Some(m) = assets.materials.get(*id) {
+            if let Some(fields) = non_finite_fields(m)
+                && warned.materials.insert(*id)
+            {
+                warn_bad(non_finite_material_message(*id, &fields));
+            }
             let material = material_with_textures(m, &mut snapshot, cache, &assets);
             snapshot.materials[slot as usize] = material;
         }
@@ -223,6 +233,11 @@ fn update_snapshot_geometry(
                         cache.waiting.insert(entity);
                         continue;
                     };
+                    if let Some(fields) = non_finite_fields(standard)
+                        && warned.materials.insert(m.id())
+                    {
+                        warn_bad(non_finite_material_message(m.id(), &fields));
+                    }
                     let material = material_with_textures(standard, &mut snapshot, cache, &assets);
                     snapshot.materials.push(material);
                     let slot = snapshot.materials.len() as u32 - 1;
@@ -256,6 +271,20 @@ fn update_snapshot_geometry(
             }
         }
         let world_from_local = transform.affine();
+        if !world_from_local.is_finite() {
+            // NaN or infinite: no light can bounce off it (a zero or mirrored scale is fine: a hidden or
+            // flipped mesh).
+            if warned.transforms.insert(entity) {
+                warn_bad(format!(
+                    "bevy_diffuse_gi: mesh entity {entity} has a non-finite transform; it takes no part in the \
+                     bounced light until its transform is finite again"
+                ));
+            }
+            if cache.instances.remove(&entity).is_some() {
+                snapshot.remove_instance(entity.to_bits());
+            }
+            continue;
+        }
         if cache.instances.get(&entity) == Some(&assets_key) && cache.meshes.contains_key(&mesh3d.id()) {
             // Only moved (or re-shown): the cheap path.
             if snapshot.instance(key).is_some_and(|i| i.material == material) {
@@ -290,6 +319,36 @@ fn update_snapshot_geometry(
     timings.instances_updated = updated;
     cost.snapshot_ms = timings.geometry_ms;
     timings.waiting = (cache.waiting.len() + cache.missing_textures.len()) as u32;
+}
+
+/// The bad inputs the snapshot has warned about (once each, for the app's lifetime).
+#[derive(Default)]
+pub(crate) struct BadInputWarned {
+    transforms: HashSet<Entity>,
+    materials: HashSet<AssetId<StandardMaterial>>,
+}
+
+/// The names of `m`'s non-finite values, if any.
+fn non_finite_fields(m: &StandardMaterial) -> Option<Vec<&'static str>> {
+    let base = m.base_color.to_linear();
+    let checks = [
+        ("base_color", base.red.is_finite() && base.green.is_finite() && base.blue.is_finite() && base.alpha.is_finite()),
+        ("emissive", m.emissive.red.is_finite() && m.emissive.green.is_finite() && m.emissive.blue.is_finite() && m.emissive.alpha.is_finite()),
+        ("metallic", m.metallic.is_finite()),
+        ("perceptual_roughness", m.perceptual_roughness.is_finite()),
+        ("specular_transmission", m.specular_transmission.is_finite()),
+        ("diffuse_transmission", m.diffuse_transmission.is_finite()),
+    ];
+    let bad: Vec<&'static str> = checks.iter().filter(|(_, ok)| !ok).map(|(name, _)| *name).collect();
+    (!bad.is_empty()).then_some(bad)
+}
+
+fn non_finite_material_message(id: AssetId<StandardMaterial>, fields: &[&str]) -> String {
+    format!(
+        "bevy_diffuse_gi: StandardMaterial {id:?} has non-finite {}; the bounced light reads each as its \
+         neutral value (no colour, no emission)",
+        fields.join(", ")
+    )
 }
 
 /// The asset collections the snapshot reads.
@@ -621,20 +680,47 @@ fn update_snapshot_lights(
     mut removed_directional: RemovedComponents<DirectionalLight>,
     mut removed_point: RemovedComponents<PointLight>,
     mut removed_spot: RemovedComponents<SpotLight>,
+    gi_lights: Query<(), With<crate::light::GiLight>>,
+    (mut warned, mut warnings): (Local<HashSet<(Entity, u8)>>, Option<ResMut<crate::DiffuseGiWarnings>>),
 ) {
     let removed = removed_directional.read().count() + removed_point.read().count() + removed_spot.read().count();
     if !(snapshot.is_added() || !changed.is_empty() || removed > 0) {
         return;
     }
+    let mut warn_once = |entity: Entity, kind: u8, message: String| {
+        if warned.insert((entity, kind)) {
+            match warnings.as_deref_mut() {
+                Some(warnings) => crate::gi_warning(warnings, message),
+                None => warn!("{message}"),
+            }
+        }
+    };
     snapshot.lights = lights
         .iter()
         .filter(|(_, _, visibility, ..)| visibility.is_none_or(|v| v.get()))
         .filter_map(|(entity, transform, _, directional, point, spot)| {
-            snapshot_light(transform, directional, point, spot).map(|(light, shadows_enabled)| SnapshotLightEntry {
-                entity,
-                light,
-                shadows_enabled,
-            })
+            let entry = snapshot_light(transform, directional, point, spot);
+            let gi = gi_lights.contains(entity);
+            match &entry {
+                None if gi => warn_once(
+                    entity,
+                    0,
+                    format!(
+                        "bevy_diffuse_gi: GI light {entity} has a non-finite transform, colour or intensity; \
+                         it adds no bounced light until they are finite again"
+                    ),
+                ),
+                Some((_, false)) if gi => warn_once(
+                    entity,
+                    1,
+                    format!(
+                        "bevy_diffuse_gi: GI light {entity} casts no shadows (`shadow_maps_enabled: false`): \
+                         its direct light goes through walls that its bounced light respects"
+                    ),
+                ),
+                _ => {}
+            }
+            entry.map(|(light, shadows_enabled)| SnapshotLightEntry { entity, light, shadows_enabled })
         })
         .collect();
     snapshot.light_generation += 1;
@@ -720,6 +806,9 @@ pub(crate) fn snapshot_light(
     };
     let position = transform.translation();
     let forward = transform.forward().as_vec3();
+    if !(position.is_finite() && forward.is_finite()) {
+        return None;
+    }
     if let Some(d) = directional {
         let illuminance = finite(rgb(d.color) * d.illuminance)?;
         return Some((SnapshotLight::Directional { direction: forward, illuminance }, d.shadow_maps_enabled));
