@@ -14,6 +14,7 @@
 //! Bevy's units, the frame count, the per-pass GPU times where timestamp queries exist, and wall times.
 
 mod options;
+pub mod stress;
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -460,8 +461,11 @@ fn drive(
             drop(frames);
             // The CPU methods work in the background: a still frame is measured once their solution of
             // the scene as it is (still) has arrived and been blended in.
-            let waited = headless.render_start.is_some_and(|s| s.elapsed() > Duration::from_secs(MAX_BACKGROUND_SECONDS));
-            let background_done = !(radiosity.busy || photon_grid.busy || vpls.busy) || waited;
+            let limit = headless.options.wait_background.map_or(MAX_BACKGROUND_SECONDS, |w| (w as u64).min(MAX_BACKGROUND_SECONDS));
+            let waited = headless.render_start.is_some_and(|s| s.elapsed() > Duration::from_secs(limit));
+            // Lights that move every frame (`--animate-light`) keep the background busy for good: the
+            // frames are measured as they come.
+            let background_done = !(radiosity.busy || photon_grid.busy || vpls.busy) || waited || headless.options.animate_light;
             if (settled || headless.phase_frames > MAX_SETTLE_FRAMES) && background_done {
                 headless.phase = Phase::Rendering;
                 headless.phase_frames = 0;

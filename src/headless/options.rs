@@ -144,7 +144,8 @@ pub struct HeadlessOptions {
     /// the photon grid's preparation) has caught up with the scene and been blended in, for at most
     /// this many seconds from the start of rendering, and read back then: the converged image after a
     /// change. The extra frames are the sidecar's `background_wait_frames`; `background_timed_out` says
-    /// whether the limit ended the wait.
+    /// whether the limit ended the wait. It also caps the wait for the first solution before the
+    /// measured frames begin (otherwise [`MAX_BACKGROUND_SECONDS`](super::MAX_BACKGROUND_SECONDS)).
     pub wait_background: Option<u32>,
     /// GI methods: after this many frames of the `--frames`, switch the camera to another method (the
     /// run-time switch a game makes from its settings menu). The new method's settings come from the

@@ -1123,6 +1123,31 @@ mod tests {
     }
 
     #[test]
+    fn mirrored_and_inside_out_instances_are_hit_and_leave_the_rest_alone() {
+        let mut scene = SceneSnapshot::default();
+        scene.materials = vec![SnapshotMaterial::DEFAULT_GREY];
+        let quad = Arc::new(MeshGeometry::new(unit_quad_z0()));
+        // A floor (the quad turned to face +y) and, above it, the quad mirrored and inside out.
+        let floor = Affine3A::from_rotation_x(-std::f32::consts::FRAC_PI_2) * Affine3A::from_scale(Vec3::splat(4.0));
+        scene.set_instance(1, quad.clone(), floor, 0);
+        scene.set_instance(2, quad.clone(), Affine3A::from_translation(Vec3::new(0.0, 1.0, 0.0)) * Affine3A::from_scale(Vec3::new(-1.0, 1.0, 1.0)), 0);
+        scene.set_instance(3, quad, Affine3A::from_translation(Vec3::new(2.5, 1.0, 0.0)) * Affine3A::from_scale(Vec3::splat(-1.0)), 0);
+        scene.commit();
+        // The floor is hit everywhere away from the others.
+        for x in [-3.0f32, -2.0, 3.5] {
+            let hit = scene.intersect(Vec3::new(x, 2.0, 0.5), Vec3::NEG_Y, 0.0, f32::INFINITY).expect("the floor");
+            assert!((hit.t - 2.0).abs() < 1e-4, "x = {x}: t = {}", hit.t);
+        }
+        // The mirrored quads are hit where they are, and their normals are unit and finite.
+        for origin in [Vec3::new(0.0, 1.5, 0.0), Vec3::new(2.5, 1.5, 0.0)] {
+            let hit = scene.intersect(origin - Vec3::Z * 2.0, Vec3::Z, 0.0, f32::INFINITY).expect("the mirrored quad");
+            assert!((hit.t - 2.0).abs() < 1e-4, "{origin}: t = {}", hit.t);
+            let n = scene.geometric_normal(hit.triangle);
+            assert!(n.is_finite() && (n.length() - 1.0).abs() < 1e-4, "{n}");
+        }
+    }
+
+    #[test]
     fn camera_rays_skip_culled_back_faces() {
         let material = SnapshotMaterial {
             culled_face: CulledFace::Back,
