@@ -64,6 +64,8 @@ const MOVING_FRAMES: u32 = 16;
 const TIMED_FRAMES: usize = 8;
 /// At most this long for a CPU method's background work, seconds.
 const WAIT_BACKGROUND: u32 = 300;
+/// Where `--stress` keeps its outcomes.
+const STRESS_JSON: &str = "docs/benchmark_stress.json";
 /// `--check`: a default's block RMSE may rise this much over the committed value.
 const CHECK_TOLERANCE: f64 = 0.10;
 
@@ -89,8 +91,9 @@ struct Cli {
     #[arg(long)]
     no_timing: bool,
     /// The JSON file of every record (records of this run replace those of the same scene, method and preset)
-    #[arg(long, value_name = "FILE.json", default_value = "docs/benchmark.json")]
-    json: PathBuf,
+    /// [default: docs/benchmark.json; with --quick, none]
+    #[arg(long, value_name = "FILE.json")]
+    json: Option<PathBuf>,
     /// Skip the method, preset and scene combinations the JSON file already has
     #[arg(long)]
     resume: bool,
@@ -100,6 +103,9 @@ struct Cli {
     /// Only --publish, measuring nothing
     #[arg(long)]
     publish_only: bool,
+    /// Run the stress matrix for every method (`bevy_diffuse_gi::headless::stress`) and publish what each case produced
+    #[arg(long)]
+    stress: bool,
     /// Fail when a medium preset's block RMSE of this run is more than 10 % above this file's
     #[arg(long, value_name = "FILE.json")]
     check: Option<PathBuf>,
@@ -153,6 +159,31 @@ struct Record {
 #[derive(Default, Serialize, Deserialize)]
 struct Results {
     records: Vec<Record>,
+}
+
+/// The stress matrix's last run (`docs/benchmark_stress.json`: a file of its own, so that it and a long
+/// benchmark run can be made at the same time).
+#[derive(Default, Serialize, Deserialize)]
+struct StressResults {
+    stress: Vec<StressRecord>,
+}
+
+/// What one method made of one stress case.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+struct StressRecord {
+    case: String,
+    description: String,
+    method: String,
+    passed: bool,
+    /// Why not, or "ok".
+    verdict: String,
+    warnings: Vec<String>,
+    expected_warnings: usize,
+    mean_luminance: f64,
+    coverage: f64,
+    background_timed_out: bool,
+    seconds: f64,
+    commit: String,
 }
 
 fn main() -> std::process::ExitCode {
@@ -257,6 +288,8 @@ fn method_settings(report: &HeadlessReport, options: &HeadlessOptions, method: G
 }
 
 struct Bench {
+    /// The terminal's progress bar: one step per method and scene.
+    bar: indicatif::ProgressBar,
     device: String,
     commit: String,
     rounds: u32,
@@ -264,6 +297,15 @@ struct Bench {
 }
 
 impl Bench {
+    /// A line above the progress bar (or on stderr where there is no terminal to draw the bar on).
+    fn log(&self, line: String) {
+        if self.bar.is_hidden() {
+            eprintln!("{line}");
+        } else {
+            self.bar.println(line);
+        }
+    }
+
     fn render(&mut self, options: &HeadlessOptions) -> Result<HeadlessReport, String> {
         common::report_render(&mut self.device, options)
     }
@@ -302,7 +344,13 @@ impl Bench {
                 commit: self.commit.clone(),
                 ..Default::default()
             });
-            eprint!(" {} {preset}: {:.3}/{:.2} ", method.name(), m.block_relative_rmse, m.energy_ratio);
+            self.log(format!(
+                "{} {} {preset}: block RMSE {:.3}, energy {:.2}",
+                scene.name(),
+                method.name(),
+                m.block_relative_rmse,
+                m.energy_ratio
+            ));
         }
         if !self.timing || room {
             for r in &mut records {
@@ -455,18 +503,26 @@ fn run() -> Result<(), String> {
     } else {
         PRESETS.iter().map(|p| p.to_string()).collect()
     };
-    let json_path = if cli.json.is_absolute() { cli.json.clone() } else { manifest(&cli.json.to_string_lossy()) };
+    // A quick run replaces the committed records only when asked to (`--json docs/benchmark.json`).
+    let write_json = cli.json.is_some() || !cli.quick;
+    let json = cli.json.clone().unwrap_or_else(|| PathBuf::from("docs/benchmark.json"));
+    let json_path = if json.is_absolute() { json } else { manifest(&json.to_string_lossy()) };
     let mut results = read_results(&json_path)?;
-    let mut bench = Bench { device: "an unknown device".into(), commit: commit(), rounds: cli.rounds, timing: !(cli.no_timing || cli.quick) };
+    let bar = indicatif::ProgressBar::new((scenes.len() * methods.len()) as u64);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} {msg} [{elapsed_precise}, about {eta} to go]")
+            .expect("a valid template"),
+    );
+    if cli.publish_only {
+        bar.finish_and_clear();
+    }
+    let mut bench = Bench { bar, device: "an unknown device".into(), commit: commit(), rounds: cli.rounds, timing: !(cli.no_timing || cli.quick) };
     let mut run_records = Vec::new();
-    let started = std::time::Instant::now();
     if !cli.publish_only {
-        let total = scenes.len() * methods.len();
-        let mut done = 0;
         for scene in &scenes {
             let truths = truths(scene)?;
             for &method in &methods {
-                done += 1;
+                bench.bar.set_message(format!("{} {}", scene.name(), method.name()));
                 let wanted: Vec<String> = presets
                     .iter()
                     .filter(|p| {
@@ -476,23 +532,56 @@ fn run() -> Result<(), String> {
                     .cloned()
                     .collect();
                 if wanted.is_empty() {
+                    bench.bar.inc(1);
                     continue;
                 }
-                eprint!("[{done}/{total} {:.0} min] {} {}:", started.elapsed().as_secs_f64() / 60.0, scene.name(), method.name());
                 let records = bench.measure(scene, method, &wanted, &truths)?;
-                eprintln!();
+                bench.bar.inc(1);
                 for r in records {
                     results.records.retain(|c| key(c) != key(&r));
                     run_records.push(r.clone());
                     results.records.push(r);
                 }
                 // Every finished method is saved: a long run that stops loses little.
-                if cli.check.is_none() || !cli.quick {
+                if write_json {
                     sort(&mut results.records);
                     write_results(&json_path, &results)?;
                 }
             }
         }
+    }
+    bench.bar.finish();
+    if cli.stress {
+        use bevy_diffuse_gi::headless::stress::{run_stress, stress_cases};
+        let mut results = StressResults::default();
+        let mut baselines = std::collections::HashMap::new();
+        for case in stress_cases() {
+            for method in GiMethod::ALL {
+                let outcome = run_stress(&case, method);
+                if case.name == "baseline" {
+                    baselines.insert(method, outcome.mean_luminance);
+                }
+                let verdict = outcome.verdict(&case, baselines.get(&method).copied());
+                eprintln!(" stress {} {}: {verdict:?} ({:.0} s)", case.name, method.name(), outcome.seconds);
+                results.stress.push(StressRecord {
+                    case: case.name.into(),
+                    description: case.description.into(),
+                    method: method.name().into(),
+                    passed: verdict.is_ok(),
+                    verdict: verdict.err().unwrap_or_else(|| "ok".into()),
+                    warnings: outcome.warnings,
+                    expected_warnings: case.expected_warnings,
+                    mean_luminance: outcome.mean_luminance,
+                    coverage: outcome.coverage,
+                    background_timed_out: outcome.background_timed_out,
+                    seconds: outcome.seconds,
+                    commit: bench.commit.clone(),
+                });
+            }
+        }
+        let text = serde_json::to_string_pretty(&results).map_err(|e| e.to_string())?;
+        let path = manifest(STRESS_JSON);
+        std::fs::write(&path, text + "\n").map_err(|e| format!("{}: {e}", path.display()))?;
     }
     if cli.publish || cli.publish_only {
         publish(&results, &bench.device)?;
@@ -575,14 +664,22 @@ fn plot(path: &Path, title: &str, x_label: &str, points: &[Point]) -> Result<(),
     use plotters::prelude::*;
     let root = SVGBackend::new(path, (720, 460)).into_drawing_area();
     root.fill(&WHITE)?;
-    let (c_max, e_min, e_max) = points.iter().fold((1.0f64, f64::INFINITY, 0.0f64), |(c, lo, hi), p| (c.max(p.2), lo.min(p.3), hi.max(p.3)));
+    let (c_min, c_max, e_min, e_max) = points
+        .iter()
+        .fold((1.0f64, 1.0f64, f64::INFINITY, 0.0f64), |(c0, c1, lo, hi), p| (c0.min(p.2), c1.max(p.2), lo.min(p.3), hi.max(p.3)));
     let mut chart = ChartBuilder::on(&root)
         .caption(title, ("sans-serif", 18))
         .margin(12)
         .x_label_area_size(40)
         .y_label_area_size(60)
-        .build_cartesian_2d(0.9f64..c_max * 1.1, ((e_min * 0.8).max(1e-3)..e_max * 1.25).log_scale())?;
-    chart.configure_mesh().x_desc(x_label).y_desc("block relative RMSE (log)").draw()?;
+        .build_cartesian_2d((c_min * 0.9..c_max * 1.1).log_scale(), ((e_min * 0.8).max(1e-3)..e_max * 1.25).log_scale())?;
+    chart
+        .configure_mesh()
+        .x_desc(format!("{x_label} (log)"))
+        .y_desc("block relative RMSE (log)")
+        .x_label_formatter(&|v| format!("{v:.1}"))
+        .y_label_formatter(&|v| format!("{v:.2}"))
+        .draw()?;
     let front = pareto(points);
     let mut front_points: Vec<(f64, f64)> = front.iter().map(|&i| (points[i].2, points[i].3)).collect();
     front_points.sort_by(|a, b| a.0.total_cmp(&b.0));
@@ -660,13 +757,24 @@ fn publish(results: &Results, device: &str) -> Result<(), String> {
     };
     for scene in scenes.iter().filter(|s| !s.starts_with("room_")) {
         let rows: Vec<&Record> = records.iter().filter(|r| &r.scene == scene).collect();
-        let points: Vec<Point> =
-            rows.iter().filter_map(|r| Some((r.method.clone(), r.preset.clone(), r.still_ratio?, r.block_rmse))).collect();
+        // A scene whose cost was not measured (an error-only run) is plotted at each preset's median cost
+        // over the scenes that were, and says so.
+        let timed = rows.iter().any(|r| r.still_ratio.is_some());
+        let points: Vec<Point> = rows
+            .iter()
+            .filter_map(|r| {
+                let cost = if timed { r.still_ratio? } else { median_cost(&r.method, &r.preset)? };
+                Some((r.method.clone(), r.preset.clone(), cost, r.block_rmse))
+            })
+            .collect();
         let front = pareto(&points);
         let on_front = |r: &Record| front.iter().any(|&i| points[i].0 == r.method && points[i].1 == r.preset);
         let one_bounce = rows.iter().any(|r| r.one_bounce_block_rmse.is_some());
         let truth_note = if scene == "near_light" { " (against its one-bounce truth, the only one committed)" } else { "" };
         body += &format!("### `{scene}`{truth_note}\n\n");
+        if !timed {
+            body += "Cost not measured on this scene in this run: the plot places each preset at its median still-frame cost over\nthe scenes that were timed.\n\n";
+        }
         body += &format!(
             "| method | preset | block rel. RMSE | energy | blocks > 50 % off |{} FLIP | still × no GI (256²) | moving light × | still × (512²) | GPU memory MiB | main thread ms | preparation ms | front |\n|---|---|---|---|---|{}---|---|---|---|---|---|---|---|\n",
             if one_bounce { " one bounce: RMSE / energy |" } else { "" },
@@ -693,7 +801,8 @@ fn publish(results: &Results, device: &str) -> Result<(), String> {
         }
         if !points.is_empty() {
             let file = format!("{scene}.svg");
-            plot(&plots.join(&file), &format!("{scene}: error against cost, 256² on {}", short_device(&devices)), "still frame × frame without GI", &points)
+            let x_label = if timed { "still frame × frame without GI" } else { "still frame × no GI (median over the timed scenes)" };
+            plot(&plots.join(&file), &format!("{scene}: error against cost, 256² on {}", short_device(&devices)), x_label, &points)
                 .map_err(|e| format!("{file}: {e}"))?;
             body += &format!("\n![{scene}: block RMSE against still-frame cost](benchmark/{file})\n");
         }
@@ -762,6 +871,12 @@ fn publish(results: &Results, device: &str) -> Result<(), String> {
     }
     common::replace_section(&doc, "gi_bench", "rooms", &body)?;
 
+    let stress: StressResults = match std::fs::read_to_string(manifest(STRESS_JSON)) {
+        Ok(text) => serde_json::from_str(&text).map_err(|e| format!("{STRESS_JSON}: {e}"))?,
+        Err(_) => StressResults::default(),
+    };
+    common::replace_section(&doc, "gi_bench", "stress", &stress_table(&stress.stress))?;
+
     // The summary: every method's default over the standard scenes.
     let summary = defaults_table(records);
     common::replace_section(&doc, "gi_bench", "summary", &format!("{summary}\n{generated}"))?;
@@ -774,6 +889,43 @@ fn publish(results: &Results, device: &str) -> Result<(), String> {
     Ok(())
 }
 
+/// One row per case: what it does, the warnings it must log, and per method the outcome.
+fn stress_table(stress: &[StressRecord]) -> String {
+    if stress.is_empty() {
+        return "Not run yet (`gi_bench --stress --publish`).\n".into();
+    }
+    let mut out = String::from(
+        "Each case on `cornell`, each method's `LOW` preset, 32², six frames plus at most 20 s for the CPU methods' background work, indirect light only\n\
+         (`tests/gpu_stress.rs` runs the same matrix). A cell reads ✓ when the run finished, no frame read back held NaN\n\
+         or infinity, the plugin logged exactly the expected warnings and the bounced light is what the case leaves of it\n\
+         (against the same method's on the unchanged scene: within a factor of two of the inverse-square value for a scaled\n\
+         scene, of the unchanged value for odd geometry on the floor), then the mean luminance of the bounced light (cd/m²\n\
+         after exposure) and, for CPU methods whose work outlasted the wait, \"still solving\".\n\n| case | expected warnings |",
+    );
+    for m in GiMethod::ALL {
+        out += &format!(" {} |", method_label(m.name()));
+    }
+    out += "\n|---|---|";
+    out += &"---|".repeat(GiMethod::ALL.len());
+    out += "\n";
+    let mut cases: Vec<(&str, &str, usize)> = stress.iter().map(|s| (s.case.as_str(), s.description.as_str(), s.expected_warnings)).collect();
+    cases.dedup();
+    for (case, description, expected) in cases {
+        out += &format!("| `{case}`: {description} | {expected} |");
+        for m in GiMethod::ALL {
+            let cell = stress.iter().find(|s| s.case == case && s.method == m.name()).map_or("—".into(), |s| {
+                let mark = if s.passed { "✓".to_string() } else { format!("✗ {}", s.verdict.replace('|', "/")) };
+                format!("{mark} {:.2e}{}", s.mean_luminance, if s.background_timed_out { ", still solving" } else { "" })
+            });
+            out += &format!(" {cell} |");
+        }
+        out += "\n";
+    }
+    let failed = stress.iter().filter(|s| !s.passed).count();
+    out += &format!("\n{} runs, {failed} failed; commit {}.\n", stress.len(), stress.first().map_or("?", |s| s.commit.as_str()));
+    out
+}
+
 fn short_device(devices: &[String]) -> String {
     devices.first().map_or("?".into(), |d| d.split(" (").next().unwrap_or(d).to_string())
 }
@@ -781,7 +933,7 @@ fn short_device(devices: &[String]) -> String {
 /// `| method | settings | cornell | cellar | median of the standard scenes | rooms | still × | moving × | memory | needs |`
 fn defaults_table(records: &[Record]) -> String {
     let mut out = String::from(
-        "| method | settings | `cornell` block RMSE / energy | `cellar` | median of the 8 standard scenes | generated rooms, tuning / held out (median) | still frame × no GI, 256² / 512² (median) | moving light × no GI | GPU memory (cornell) | needs |\n\
+        "| method | settings | `cornell` block RMSE / energy | `cellar` | median of the 8 standard scenes | generated rooms, tuning / held out (median) | still frame × no GI, 256² / 512² (median of the timed scenes) | moving light × no GI (median) | GPU memory (cornell) | needs |\n\
          |---|---|---|---|---|---|---|---|---|---|\n",
     );
     for m in GiMethod::ALL {
