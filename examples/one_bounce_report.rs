@@ -5,7 +5,7 @@
 //! ```text
 //! cargo run --release --example one_bounce_report -- [--section NAME]... [--rounds N] [--docs docs/one_bounce.md]
 //! ```
-//! Sections: `accuracy`, `near_light`, `flashing`, `timing`, `equal_time`, `images` (default: all). Each prints a
+//! Sections: `accuracy`, `near_light`, `flashing`, `timing`, `images` (default: all). Each prints a
 //! Markdown table; with `--docs FILE` the table also replaces the text between
 //! `<!-- one_bounce_report:NAME -->` and `<!-- /one_bounce_report:NAME -->` in FILE. Renders run one
 //! after another in this process on whatever Vulkan device wgpu picks (lavapipe on CI machines), at 256²
@@ -28,16 +28,11 @@ use bevy_diffuse_gi::drm::{DrmSettings, DrmSolidAngle};
 use bevy_diffuse_gi::hdr_image::HdrImage;
 use bevy_diffuse_gi::headless::{self, HeadlessMethod, HeadlessOptions, HeadlessReport};
 use bevy_diffuse_gi::metrics::{self, ErrorMetrics};
-use bevy_diffuse_gi::radiance_hints::RadianceHintsVolume;
 use bevy_diffuse_gi::rsm_gather::{RsmGatherSettings, RsmSampleWeights};
 use bevy_diffuse_gi::scenes::StandardScene;
-use bevy_diffuse_gi::vpl::VplSettings;
 
-const SECTIONS: &[&str] = &["accuracy", "near_light", "flashing", "timing", "equal_time", "images"];
+const SECTIONS: &[&str] = &["accuracy", "near_light", "flashing", "timing", "images"];
 
-/// Frames of an accuracy render (the one-bounce methods have no temporal accumulation; Radiance Hints
-/// and VPLs settle over these).
-const STILL_FRAMES: u32 = 32;
 /// Frames of a timed render, and the intervals at its end that the medians use.
 const TIMING_FRAMES: u32 = 16;
 const TIMED_FRAMES: usize = 8;
@@ -58,7 +53,6 @@ fn run() -> Result<(), String> {
             "near_light" => report.near_light()?,
             "flashing" => report.flashing()?,
             "timing" => report.timing(args.rounds)?,
-            "equal_time" => report.equal_time(args.rounds)?,
             "images" => report.images()?,
             _ => unreachable!("sections are validated"),
         };
@@ -91,28 +85,6 @@ fn drm(scene: StandardScene, drm: DrmSettings) -> HeadlessOptions {
 
 fn drm_with(n: u32, solid_angle: DrmSolidAngle) -> DrmSettings {
     DrmSettings { samples_per_axis: n, solid_angle, ..DrmSettings::default() }
-}
-
-fn rh(scene: StandardScene) -> HeadlessOptions {
-    HeadlessOptions {
-        scene,
-        method: HeadlessMethod::Gi(GiMethod::RadianceHints),
-        indirect_only: true,
-        rh: RadianceHintsVolume::MEDIUM,
-        frames: STILL_FRAMES,
-        ..Default::default()
-    }
-}
-
-fn vpl(scene: StandardScene) -> HeadlessOptions {
-    HeadlessOptions {
-        scene,
-        method: HeadlessMethod::Gi(GiMethod::Vpl),
-        indirect_only: true,
-        vpl: VplSettings::MEDIUM,
-        frames: STILL_FRAMES,
-        ..Default::default()
-    }
 }
 
 fn eq(solid_angle: DrmSolidAngle) -> String {
@@ -313,52 +285,6 @@ impl Report {
         Ok(out)
     }
 
-    /// The one-bounce gathers beside Radiance Hints and VPLs (medium presets): error against both
-    /// truths and the frame time, on each scene.
-    fn equal_time(&mut self, rounds: usize) -> Result<String, String> {
-        let mut out = String::from(
-            "| scene | method | one bounce: block rel. RMSE | energy | all bounces: block rel. RMSE | energy | × frame without GI (256²) |\n\
-             |---|---|---|---|---|---|---|\n",
-        );
-        for (scene, name) in [(StandardScene::Cornell, "cornell"), (StandardScene::Cellar, "cellar"), (StandardScene::SponzaLike, "sponza_like")] {
-            let configs: Vec<(&str, HeadlessOptions)> = vec![
-                ("no GI", HeadlessOptions { scene: scene.clone(), ..Default::default() }),
-                ("DRM medium (Eq. 14, 3×3)", drm(scene.clone(), DrmSettings::MEDIUM)),
-                ("DRM high (Eq. 14, 16×16)", drm(scene.clone(), DrmSettings::HIGH)),
-                ("RSM gather medium", rsm(scene.clone(), RsmGatherSettings::MEDIUM)),
-                ("RSM gather high", rsm(scene.clone(), RsmGatherSettings::HIGH)),
-                ("Radiance Hints medium", rh(scene.clone())),
-                ("VPL medium", vpl(scene.clone())),
-            ];
-            let mut times: Vec<Vec<f64>> = vec![Vec::new(); configs.len()];
-            let mut errors: Vec<Option<(ErrorMetrics, ErrorMetrics)>> = vec![None; configs.len()];
-            for _ in 0..rounds {
-                for (i, (label, options)) in configs.iter().enumerate() {
-                    if *label != "no GI" && errors[i].is_none() {
-                        let image = self.render(options)?.image;
-                        errors[i] = Some((self.compare(&image, &format!("{name}_b1"))?, self.compare(&image, name)?));
-                    }
-                    // Every configuration runs STILL_FRAMES frames, so that Radiance Hints has finished
-                    // refining its volume and the last frames time a still scene for every method.
-                    let timed = HeadlessOptions { indirect_only: false, frames: STILL_FRAMES, ..options.clone() };
-                    times[i].push(common::frame_ms(&self.render(&timed)?, TIMED_FRAMES));
-                }
-            }
-            let base = common::median(&times[0]);
-            for (i, (label, _)) in configs.iter().enumerate().skip(1) {
-                let (one, all) = errors[i].expect("measured");
-                out += &format!(
-                    "| {name} | {label} | {:.3} | {:.3} | {:.3} | {:.3} | {:.2} |\n",
-                    one.block_relative_rmse,
-                    one.energy_ratio,
-                    all.block_relative_rmse,
-                    all.energy_ratio,
-                    common::median(&times[i]) / base
-                );
-            }
-        }
-        Ok(out)
-    }
 
     /// Images for the docs page (`docs/images/one_bounce_*.png`, indirect light ×4, tonemapped).
     fn images(&mut self) -> Result<String, String> {

@@ -4,7 +4,7 @@
 //! ```text
 //! cargo run --release --example photon_grid_report -- [--section NAME]... [--rounds N] [--docs docs/photon_grid.md]
 //! ```
-//! Sections: `accuracy`, `stages`, `versus`, `timing` (default: all). Each prints a Markdown table; with
+//! Sections: `accuracy`, `stages`, `timing` (default: all). Each prints a Markdown table; with
 //! `--docs FILE` the table also replaces the text between `<!-- photon_grid_report:NAME -->` and
 //! `<!-- /photon_grid_report:NAME -->` in FILE. Renders run one after another in this process on
 //! whatever Vulkan device wgpu picks (lavapipe on CI machines), at 256², against the committed EXRs of
@@ -19,16 +19,12 @@ use std::process::ExitCode;
 use bevy_diffuse_gi::camera::GiMethod;
 use bevy_diffuse_gi::headless::{HeadlessMethod, HeadlessOptions, HeadlessReport};
 use bevy_diffuse_gi::photon_grid::PhotonGridSettings;
-use bevy_diffuse_gi::radiance_hints::RadianceHintsVolume;
 use bevy_diffuse_gi::scenes::StandardScene;
 
-const SECTIONS: &[&str] = &["accuracy", "stages", "versus", "timing"];
+const SECTIONS: &[&str] = &["accuracy", "stages", "timing"];
 /// Frames of a timed render, and the intervals at its end that the medians use.
 const TIMING_FRAMES: u32 = 16;
 const TIMED_FRAMES: usize = 8;
-/// Frames after which a Radiance Hints volume has finished refining (its 17 amortised updates), as in
-/// `rh_report`: its accuracy is read, and its still frames are timed, after these.
-const RH_CONVERGED_FRAMES: u32 = 32;
 
 fn main() -> ExitCode {
     common::report_main("photon_grid_report", run)
@@ -42,7 +38,6 @@ fn run() -> Result<(), String> {
         let table = match section.as_str() {
             "accuracy" => accuracy(&mut device)?,
             "stages" => stages(&mut device)?,
-            "versus" => versus(&mut device, args.rounds)?,
             "timing" => timing(&mut device, args.rounds)?,
             _ => unreachable!("sections are validated"),
         };
@@ -164,65 +159,7 @@ fn stages(device: &mut String) -> Result<String, String> {
     Ok(out)
 }
 
-/// Median frame time of `options` (still frames) over `rounds` runs.
-fn still_frame_ms(device: &mut String, options: &HeadlessOptions, rounds: usize) -> Result<f64, String> {
-    let mut times = Vec::new();
-    for _ in 0..rounds.max(1) {
-        let timed = HeadlessOptions { frames: TIMING_FRAMES, indirect_only: false, ..options.clone() };
-        times.push(common::frame_ms(&common::report_render(device, &timed)?, TIMED_FRAMES));
-    }
-    Ok(common::median(&times))
-}
 
-/// Radiance Hints and the photon grid on the same scenes: error, still-frame cost and the work done when
-/// the scene changes.
-fn versus(device: &mut String, rounds: usize) -> Result<String, String> {
-    let mut out = String::from(
-        "Each method's presets on the same scenes: error against the full truth and the median of 8 still frames (256²,\n\
-         lavapipe, lit image), both once the method has settled, and what a change of the scene costs. Radiance Hints\n\
-         refines its volume on the GPU over the frames after a change (17 amortised updates; its rows are read after 32\n\
-         frames), and its cost per change is the time those frames took beyond as many still frames. The photon grid\n\
-         redoes its preparation in a background task once per change and only gathers in its frames.\n\n\
-         | scene | method | block RMSE | pixel RMSE | energy | blocks > 50 % off | frame ms | preparation per change ms |\n\
-         |---|---|---|---|---|---|---|---|\n",
-    );
-    for (scene, name) in [(StandardScene::Cornell, "cornell"), (StandardScene::Cellar, "cellar"), (StandardScene::SponzaLike, "sponza_like")] {
-        let reference = common::report_truth(name)?;
-        for (label, volume) in [("Radiance Hints, default", RadianceHintsVolume::default()), ("Radiance Hints, high", RadianceHintsVolume::HIGH)] {
-            let o = HeadlessOptions {
-                scene: scene.clone(),
-                method: HeadlessMethod::Gi(GiMethod::RadianceHints),
-                indirect_only: true,
-                rh: volume,
-                frames: RH_CONVERGED_FRAMES,
-                ..Default::default()
-            };
-            let m = common::report_compare(&common::report_render(device, &o)?.image, &reference)?;
-            // Timed runs go on for TIMED_FRAMES still frames after the refinement.
-            let (mut still, mut refining) = (Vec::new(), Vec::new());
-            for _ in 0..rounds.max(1) {
-                let timed = HeadlessOptions { frames: RH_CONVERGED_FRAMES + TIMED_FRAMES as u32, indirect_only: false, ..o.clone() };
-                let report = common::report_render(device, &timed)?;
-                let frames = common::frame_intervals(&report);
-                let ms = common::frame_ms(&report, TIMED_FRAMES);
-                let settling = &frames[..frames.len().saturating_sub(TIMED_FRAMES)];
-                still.push(ms);
-                refining.push(settling.iter().map(|f| (f - ms).max(0.0)).sum::<f64>());
-            }
-            let (ms, change) = (common::median(&still), common::median(&refining));
-            out += &format!("| {name} | {label} | {} | {ms:.1} | {change:.0} (GPU, over the frames after it) |\n", common::report_cells(&m));
-        }
-        for (label, settings) in [("low", PhotonGridSettings::LOW), ("medium", PhotonGridSettings::MEDIUM), ("high", PhotonGridSettings::HIGH)] {
-            let o = options(scene.clone(), settings);
-            let report = common::report_render(device, &o)?;
-            let m = common::report_compare(&report.image, &reference)?;
-            let total: f64 = preparation(&report).ms.iter().sum();
-            let ms = still_frame_ms(device, &o, rounds)?;
-            out += &format!("| {name} | photon grid, {label} | {} | {ms:.1} | {total:.0} |\n", common::report_cells(&m));
-        }
-    }
-    Ok(out)
-}
 
 /// Still-frame cost against the frame without GI, alternating in `rounds` rounds.
 fn timing(device: &mut String, rounds: usize) -> Result<String, String> {

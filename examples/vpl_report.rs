@@ -4,7 +4,7 @@
 //! ```text
 //! cargo run --release --example vpl_report -- [--section NAME]... [--rounds N] [--docs docs/vpl_ssbc.md]
 //! ```
-//! Sections: `accuracy`, `corners`, `timing`, `equal_time` (default: all). Each prints a Markdown table;
+//! Sections: `accuracy`, `corners`, `timing` (default: all). Each prints a Markdown table;
 //! with `--docs FILE` the table also replaces the text between `<!-- vpl_report:NAME -->` and
 //! `<!-- /vpl_report:NAME -->` in FILE. Renders run one after another in this process on whatever Vulkan
 //! device wgpu picks (lavapipe on CI machines), at 256² unless a table says otherwise, against the
@@ -31,7 +31,7 @@ use bevy_diffuse_gi::scenes::StandardScene;
 use bevy_diffuse_gi::settings::GiSettings;
 use bevy_diffuse_gi::vpl::VplSettings;
 
-const SECTIONS: &[&str] = &["accuracy", "corners", "timing", "equal_time"];
+const SECTIONS: &[&str] = &["accuracy", "corners", "timing"];
 
 /// Frames of an accuracy render (the VPL method has no temporal accumulation; RH refines over these).
 const STILL_FRAMES: u32 = 32;
@@ -53,7 +53,6 @@ fn run() -> Result<(), String> {
             "accuracy" => report.accuracy()?,
             "corners" => report.corners()?,
             "timing" => report.timing(args.rounds)?,
-            "equal_time" => report.equal_time(args.rounds)?,
             _ => unreachable!("sections are validated"),
         };
         common::publish_section("vpl_report", &args, section, &table, &report.device, started)?;
@@ -266,47 +265,4 @@ impl Report {
         Ok(out)
     }
 
-    /// VPL and Radiance Hints side by side: error and frame time on each scene.
-    fn equal_time(&mut self, rounds: usize) -> Result<String, String> {
-        let mut out = String::from(
-            "| scene | method | block rel. RMSE | energy | frame (median ms, 256²) | × frame without GI |\n|---|---|---|---|---|---|\n",
-        );
-        for (scene, truth) in
-            [(StandardScene::Cornell, "cornell"), (StandardScene::Cellar, "cellar"), (StandardScene::SponzaLike, "sponza_like")]
-        {
-            let configs: Vec<(&str, HeadlessOptions)> = vec![
-                ("no GI", HeadlessOptions { scene: scene.clone(), frames: 16, ..Default::default() }),
-                ("VPL low", vpl_options(scene.clone(), VplSettings::LOW)),
-                ("VPL medium", vpl_options(scene.clone(), VplSettings::MEDIUM)),
-                ("VPL high", vpl_options(scene.clone(), VplSettings::HIGH)),
-                ("RH low", rh_options(scene.clone(), RadianceHintsVolume::LOW)),
-                ("RH medium", rh_options(scene.clone(), RadianceHintsVolume::MEDIUM)),
-                ("RH high", rh_options(scene.clone(), RadianceHintsVolume::HIGH)),
-            ];
-            let mut times: Vec<Vec<f64>> = vec![Vec::new(); configs.len()];
-            let mut errors: Vec<Option<ErrorMetrics>> = vec![None; configs.len()];
-            for _ in 0..rounds {
-                for (i, (name, options)) in configs.iter().enumerate() {
-                    let measured = self.render(options)?;
-                    times[i].push(common::frame_ms(&measured, TIMED_FRAMES));
-                    if *name != "no GI" && errors[i].is_none() {
-                        errors[i] = Some(self.compare(&measured.image, truth)?);
-                    }
-                }
-            }
-            let base = common::median(&times[0]);
-            for (i, (name, _)) in configs.iter().enumerate().skip(1) {
-                let m = errors[i].expect("measured");
-                let t = common::median(&times[i]);
-                out += &format!(
-                    "| {} | {name} | {:.3} | {:.3} | {t:.1} | {:.2} |\n",
-                    scene.name(),
-                    m.block_relative_rmse,
-                    m.energy_ratio,
-                    t / base
-                );
-            }
-        }
-        Ok(out)
-    }
 }
