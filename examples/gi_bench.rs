@@ -962,8 +962,7 @@ fn defaults_table(records: &[Record]) -> String {
             GiMethod::PhotonGrid => ("`PhotonGridSettings`", "CPU cores in the background: its light lags a change by one preparation"),
         };
         out += &format!(
-            "| `{}` ({name}) | {settings} | {} | {} | {} | {} / {} | {} / {} | {} | {} MiB | {needs} |\n",
-            format!("{m:?}"),
+            "| `{m:?}` ({name}) | {settings} | {} | {} | {} | {} / {} | {} / {} | {} | {} MiB | {needs} |\n",
             at("cornell"),
             at("cellar"),
             opt(med(&|r| Some(r.block_rmse), &standard), 3),

@@ -664,6 +664,7 @@ type LightEntity<'a> = (
     Option<&'a SpotLight>,
 );
 
+#[expect(clippy::too_many_arguments, reason = "a system reading every kind of light and its removals")]
 fn update_snapshot_lights(
     mut snapshot: ResMut<SceneSnapshot>,
     lights: Query<LightEntity, Or<(With<DirectionalLight>, With<PointLight>, With<SpotLight>)>>,

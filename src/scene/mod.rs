@@ -1124,8 +1124,7 @@ mod tests {
 
     #[test]
     fn mirrored_and_inside_out_instances_are_hit_and_leave_the_rest_alone() {
-        let mut scene = SceneSnapshot::default();
-        scene.materials = vec![SnapshotMaterial::DEFAULT_GREY];
+        let mut scene = SceneSnapshot { materials: vec![SnapshotMaterial::DEFAULT_GREY], ..Default::default() };
         let quad = Arc::new(MeshGeometry::new(unit_quad_z0()));
         // A floor (the quad turned to face +y) and, above it, the quad mirrored and inside out.
         let floor = Affine3A::from_rotation_x(-std::f32::consts::FRAC_PI_2) * Affine3A::from_scale(Vec3::splat(4.0));
