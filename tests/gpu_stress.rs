@@ -65,6 +65,7 @@ fn radiosity_light_follows_the_scale_of_the_scene() {
     for name in ["tiny_scene", "huge_scene"] {
         let case = cases.iter().find(|c| c.name == name).expect("the case");
         let outcome = run(case, GiMethod::Radiosity);
+        assert!(!outcome.background_timed_out, "{name}: the solve outlasted the wait");
         outcome.verdict(case, Some(baseline.mean_luminance)).unwrap_or_else(|why| panic!("{name}: {why}"));
     }
 }
