@@ -473,17 +473,7 @@ fn run() -> Result<(), String> {
         // SAFETY: set before any render thread exists.
         unsafe { std::env::set_var("WGPU_BACKEND", "vulkan") };
     }
-    let methods: Vec<GiMethod> = if cli.methods.is_empty() {
-        GiMethod::ALL.to_vec()
-    } else {
-        cli.methods
-            .iter()
-            .map(|m| match HeadlessMethod::parse(m)? {
-                HeadlessMethod::Gi(g) => Ok(g),
-                _ => Err(format!("`{m}` is not a GI method")),
-            })
-            .collect::<Result<_, String>>()?
-    };
+    let methods = common::gi_methods(&cli.methods)?;
     let scenes: Vec<StandardScene> = if !cli.scenes.is_empty() {
         cli.scenes.iter().map(|s| StandardScene::parse(s)).collect::<Result<_, _>>()?
     } else if cli.quick {
@@ -966,7 +956,7 @@ fn short_device(devices: &[String]) -> String {
 /// `| method | settings | cornell | cellar | median of the standard scenes | rooms | still × | moving × | memory | needs |`
 fn defaults_table(records: &[Record]) -> String {
     let mut out = String::from(
-        "| method | settings | `cornell` block RMSE / energy | `cellar` | median of the 8 standard scenes | generated rooms, tuning / held out (median) | still frame × no GI, 256² / 512² (median of the timed scenes) | moving light × no GI (median) | GPU memory (cornell) | needs |\n\
+        "| method | settings | `cornell` block RMSE / energy | `cellar` | median of the standard scenes measured | generated rooms, tuning / held out (median) | still frame × no GI, 256² / 512² (median of the timed scenes) | moving light × no GI (median) | GPU memory (cornell) | needs |\n\
          |---|---|---|---|---|---|---|---|---|---|\n",
     );
     for m in GiMethod::ALL {

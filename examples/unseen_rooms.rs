@@ -192,17 +192,7 @@ fn run() -> Result<(), String> {
     }
     let started = std::time::Instant::now();
     let mut device = String::from("an unknown device");
-    let methods: Vec<GiMethod> = if cli.methods.is_empty() {
-        GiMethod::ALL.to_vec()
-    } else {
-        cli.methods
-            .iter()
-            .map(|m| match HeadlessMethod::parse(m)? {
-                HeadlessMethod::Gi(g) => Ok(g),
-                _ => Err(format!("`{m}` is not a GI method")),
-            })
-            .collect::<Result<_, String>>()?
-    };
+    let methods = common::gi_methods(&cli.methods)?;
 
     let mut truths = Vec::new();
     for &seed in &cli.seeds.0 {

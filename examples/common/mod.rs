@@ -102,6 +102,20 @@ pub fn parse_report_args(tool: &'static str, sections: &[&'static str]) -> Repor
     }
 }
 
+/// The GI methods named in a `--methods` list (every method for an empty list).
+pub fn gi_methods(names: &[String]) -> Result<Vec<GiMethod>, String> {
+    if names.is_empty() {
+        return Ok(GiMethod::ALL.to_vec());
+    }
+    names
+        .iter()
+        .map(|m| match HeadlessMethod::parse(m)? {
+            HeadlessMethod::Gi(g) => Ok(g),
+            _ => Err(format!("`{m}` is not a GI method")),
+        })
+        .collect()
+}
+
 /// The `main` of a report (or any tool) `tool`: status 0 when `run` succeeds, otherwise its message on
 /// stderr and status 1.
 pub fn report_main(tool: &str, run: impl FnOnce() -> Result<(), String>) -> std::process::ExitCode {
