@@ -31,7 +31,10 @@ pub enum SceneSnapshotSystems {
 
 impl Plugin for SceneSnapshotPlugin {
     fn build(&self, app: &mut App) {
-        app.init_resource::<SnapshotTimings>().init_resource::<crate::MainThreadCost>().add_systems(
+        app.init_resource::<SnapshotTimings>()
+            .init_resource::<crate::MainThreadCost>()
+            .init_resource::<crate::DiffuseGiWarnings>()
+            .add_systems(
             PostUpdate,
             (
                 // Apps without meshes, materials or images (no renderer) have no geometry to snapshot.
@@ -113,14 +116,11 @@ fn update_snapshot_geometry(
     mut material_events: MessageReader<AssetEvent<StandardMaterial>>,
     mut image_events: MessageReader<AssetEvent<Image>>,
     assets: SnapshotAssets,
-    (mut warned, mut warnings): (Local<BadInputWarned>, Option<ResMut<crate::DiffuseGiWarnings>>),
+    (mut warned, mut warnings): (Local<BadInputWarned>, ResMut<crate::DiffuseGiWarnings>),
 ) {
     let start = std::time::Instant::now();
     let cache = &mut *cache;
-    let mut warn_bad = |message: String| match warnings.as_deref_mut() {
-        Some(warnings) => crate::gi_warning(warnings, message),
-        None => warn!("{message}"),
-    };
+    let mut warn_bad = |message: String| crate::gi_warning(&mut warnings, message);
     let mut dirty: HashSet<Entity> = HashSet::default();
     // A new (or replaced, or externally edited) snapshot is built from scratch.
     if snapshot.is_added() || snapshot.geometry_generation != cache.generation || cache.generation == 0 {
@@ -682,7 +682,7 @@ fn update_snapshot_lights(
     mut removed_point: RemovedComponents<PointLight>,
     mut removed_spot: RemovedComponents<SpotLight>,
     gi_lights: Query<(), With<crate::light::GiLight>>,
-    (mut warned, mut warnings): (Local<HashSet<(Entity, u8)>>, Option<ResMut<crate::DiffuseGiWarnings>>),
+    (mut warned, mut warnings): (Local<HashSet<(Entity, u8)>>, ResMut<crate::DiffuseGiWarnings>),
 ) {
     let removed = removed_directional.read().count() + removed_point.read().count() + removed_spot.read().count();
     if !(snapshot.is_added() || !changed.is_empty() || removed > 0) {
@@ -690,10 +690,7 @@ fn update_snapshot_lights(
     }
     let mut warn_once = |entity: Entity, kind: u8, message: String| {
         if warned.insert((entity, kind)) {
-            match warnings.as_deref_mut() {
-                Some(warnings) => crate::gi_warning(warnings, message),
-                None => warn!("{message}"),
-            }
+            crate::gi_warning(&mut warnings, message);
         }
     };
     snapshot.lights = lights
