@@ -120,7 +120,7 @@ fn vpl_count(scene: &StandardScene, settings: &VplSettings) -> usize {
     let lights: Vec<_> = snapshot.lights.iter().map(|l| l.light).collect();
     let guides: Vec<_> = lights.iter().map(|l| EmissionGuide::from_pilots(&pilot_hits(&snapshot, l), &[camera])).collect();
     let s = settings.sanitized().0;
-    generate_vpls(&snapshot, &lights, Some(&guides), WalkSettings { paths: s.light_paths, bounces: s.bounces, seed: s.seed }).len()
+    generate_vpls(&snapshot, &lights, &[], Some(&guides), WalkSettings { paths: s.light_paths, bounces: s.bounces, seed: s.seed }).len()
 }
 
 impl Report {

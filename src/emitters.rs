@@ -79,7 +79,7 @@ impl Plugin for EmittersPlugin {
     }
 }
 
-fn update_emitters(
+pub(crate) fn update_emitters(
     snapshot: Res<SceneSnapshot>,
     cameras: Query<(&Camera, Option<&Exposure>), With<DiffuseGi>>,
     mut emitters: ResMut<EmitterSamples>,
@@ -160,6 +160,27 @@ pub fn sample_emitters(snapshot: &SceneSnapshot, exposure: f32, count: usize) ->
     (samples, total as f32)
 }
 
+/// Irradiance (lux) at a point from a Lambertian rectangle of radiance `radiance` in a plane parallel to
+/// the receiver's and facing it, at height `height` above it; the rectangle spans `[x0, x1] × [z0, z1]`
+/// in the plane's coordinates, measured from the foot of the receiver. The closed form `E = π L F` with
+/// the differential-area-to-parallel-rectangle form factor of a rectangle with a corner over the point
+/// (Howell's catalogue, B-3), `F = 1/2π [A/√(1+A²) atan(B/√(1+A²)) + B/√(1+B²) atan(A/√(1+B²))]`,
+/// `A = a/h`, `B = b/h`, summed with signs over the four corner rectangles.
+///
+/// The ground truth's tracer and every method's injection of emissive surfaces are checked against it,
+/// so that an error in the shared emission lookups cannot cancel between the truth and the methods.
+pub fn parallel_rectangle_irradiance(radiance: f32, height: f32, [x0, x1]: [f32; 2], [z0, z1]: [f32; 2]) -> f32 {
+    let h = height.abs().max(1e-12);
+    let corner = |x: f32, z: f32| {
+        let (a, b) = (x.abs() / h, z.abs() / h);
+        let (sa, sb) = ((1.0 + a * a).sqrt(), (1.0 + b * b).sqrt());
+        let f = (a / sa * (b / sa).atan() + b / sb * (a / sb).atan()) / (2.0 * std::f32::consts::PI);
+        f * x.signum() * z.signum()
+    };
+    let form_factor = corner(x1, z1) - corner(x0, z1) - corner(x1, z0) + corner(x0, z0);
+    std::f32::consts::PI * radiance * form_factor
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -217,5 +238,45 @@ mod tests {
         assert_eq!(high, 300);
         // Every sample carries the same flux in its brightest channel.
         assert!(samples.iter().all(|s| (s.flux.x - samples[0].flux.x).abs() < 1e-4 * s.flux.x));
+    }
+
+    #[test]
+    fn the_closed_form_covers_half_space_and_superposes() {
+        // A plane without bounds: E = π L.
+        let e = parallel_rectangle_irradiance(2.0, 1.0, [-1e5, 1e5], [-1e5, 1e5]);
+        assert!((e - 2.0 * std::f32::consts::PI).abs() < 1e-3, "{e}");
+        // Two halves of a rectangle add up to it, and a rectangle off to the side gives less than centred.
+        let whole = parallel_rectangle_irradiance(1.0, 0.7, [-0.5, 0.8], [-0.3, 0.4]);
+        let halves = parallel_rectangle_irradiance(1.0, 0.7, [-0.5, 0.1], [-0.3, 0.4])
+            + parallel_rectangle_irradiance(1.0, 0.7, [0.1, 0.8], [-0.3, 0.4]);
+        assert!((whole - halves).abs() < 1e-5 * whole, "{whole} vs {halves}");
+        // Far away it is a point source: E ≈ L A / d² (head-on).
+        let far = parallel_rectangle_irradiance(1.0, 100.0, [-0.5, 0.5], [-0.5, 0.5]);
+        assert!((far - 1.0 / 1e4).abs() < 1e-3 * far, "{far}");
+    }
+
+    #[test]
+    fn the_samples_give_a_panels_irradiance_on_a_parallel_plane() {
+        // A 1 × 0.6 m panel 0.8 m over a floor: Σ Φ_k |n_k·ω| cos θ / (π d²) over the samples is the
+        // point estimate every method that injects them makes (Radiance Hints' inject.wgsl).
+        let le = Vec3::new(30.0, 20.0, 10.0);
+        let glow = SnapshotMaterial { emissive: le, diffuse: Vec3::ZERO, ..SnapshotMaterial::DEFAULT_GREY };
+        let (a, b, c, d) = (Vec3::new(-0.5, 0.8, -0.3), Vec3::new(0.5, 0.8, -0.3), Vec3::new(0.5, 0.8, 0.3), Vec3::new(-0.5, 0.8, 0.3));
+        let triangles = vec![InputTriangle::flat([a, b, c], 0), InputTriangle::flat([a, c, d], 0)];
+        let snapshot = SceneSnapshot::build(triangles, vec![glow], vec![], vec![]);
+        let (samples, _) = sample_emitters(&snapshot, 1.0, MAX_EMITTER_SAMPLES);
+        for p in [Vec3::ZERO, Vec3::new(0.4, 0.0, 0.1), Vec3::new(-1.2, 0.0, 0.9)] {
+            let mut e = Vec3::ZERO;
+            for s in &samples {
+                let to = s.position.truncate() - p;
+                let d2 = to.length_squared();
+                let w = to.normalize();
+                e += s.flux.truncate() * s.normal.truncate().dot(w).abs() * w.y.max(0.0) / (std::f32::consts::PI * d2);
+            }
+            for (channel, got) in [(le.x, e.x), (le.y, e.y), (le.z, e.z)] {
+                let want = parallel_rectangle_irradiance(channel, 0.8, [-0.5 - p.x, 0.5 - p.x], [-0.3 - p.z, 0.3 - p.z]);
+                assert!((got - want).abs() < 0.02 * want, "at {p}: {got} lx vs {want} lx");
+            }
+        }
     }
 }

@@ -11,7 +11,7 @@ use bevy_diffuse_gi::headless::{HeadlessMethod, HeadlessOptions};
 use bevy_diffuse_gi::metrics;
 use bevy_diffuse_gi::scenes::StandardScene;
 use bevy_diffuse_gi::vpl::VplSettings;
-use common::{Region, check, ground_truth, luminance, render};
+use common::{Region, check, ground_truth, luminance, render, within};
 
 fn vpl_options(scene: StandardScene, vpl: VplSettings) -> HeadlessOptions {
     HeadlessOptions {
@@ -180,6 +180,24 @@ fn sponza_like_vpl_lights_the_atrium_from_the_sun_patch() {
 
 /// Measured on lavapipe with traced shadow maps: 0.314 (energy 1.001), see `docs/vpl_ssbc.md`.
 const CELLAR_BLOCK_LIMIT: f64 = 0.36;
+
+#[test]
+fn an_emissive_panel_alone_lights_the_room_in_its_colour() {
+    // No GI light: every VPL comes from paths that start on the panel (bounce 0 on the panel itself,
+    // carrying its direct light). Measured 0.305 / 0.938 (before emitters started paths: no light at
+    // all, 1.561 / 0.000; with second-depth maps behind the panel, which has no back, 0.506 / 1.193).
+    let test = "vpl_emissive_panel";
+    let truth = ground_truth("emissive_panel.exr");
+    let image = vpl(StandardScene::EmissivePanel, VplSettings::MEDIUM);
+    within(test, &image, &truth, 0.35, (0.88, 1.0));
+    // The warm colour of the panel: R/G and B/G of the back wall within 10 % of the truth's.
+    let wall = Region::new("back wall", 90, 60, 166, 110);
+    let (a, r) = (wall.mean(test, &image), wall.mean(test, &truth));
+    for (c, name) in [(0, "R/G"), (2, "B/G")] {
+        let (ours, theirs) = (a[c] / a[1], r[c] / r[1]);
+        check(test, (ours / theirs - 1.0).abs() < 0.1, &image, Some(&truth), format!("{name} {ours:.3} against the truth's {theirs:.3}"));
+    }
+}
 
 #[test]
 fn switching_the_method_at_run_time_changes_the_image_and_leaves_no_stale_light() {

@@ -246,3 +246,51 @@ fn a_floor_under_a_sky_reflects_rho_times_the_sky_as_indirect_light() {
     assert_rel(emission, sky, 1e-6, "the sky seen by a probe");
     assert_eq!(direct + indirect, Vec3::ZERO);
 }
+
+#[test]
+fn floor_under_an_emissive_panel_matches_the_closed_form_form_factor() {
+    // A black 1 × 0.6 m panel of radiance Le, 0.8 m over a 40 m floor of albedo ρ: the floor reflects
+    // ρ/π · E with E the closed form (`crate::emitters::parallel_rectangle_irradiance`), all of it
+    // indirect light (emission reflected once; Bevy draws no light from emissive materials).
+    let le = Vec3::new(30.0, 20.0, 10.0);
+    let rho = 0.5;
+    let y = 0.8;
+    let glow = SnapshotMaterial { emissive: le, diffuse: Vec3::ZERO, ..SnapshotMaterial::DEFAULT_GREY };
+    let floor = SnapshotMaterial { diffuse: Vec3::splat(rho), ..SnapshotMaterial::DEFAULT_GREY };
+    let (a, b, c, d) = (Vec3::new(-0.5, y, -0.3), Vec3::new(0.5, y, -0.3), Vec3::new(0.5, y, 0.3), Vec3::new(-0.5, y, 0.3));
+    let s = 20.0;
+    let f = [Vec3::new(-s, 0.0, -s), Vec3::new(-s, 0.0, s), Vec3::new(s, 0.0, s), Vec3::new(s, 0.0, -s)];
+    let triangles = vec![
+        InputTriangle::flat([a, b, c], 1),
+        InputTriangle::flat([a, c, d], 1),
+        InputTriangle::flat([f[0], f[1], f[2]], 0),
+        InputTriangle::flat([f[0], f[2], f[3]], 0),
+    ];
+    let scene = SceneSnapshot::build(triangles, vec![floor, glow], vec![], vec![]);
+    // Low and to the side, under the panel's height: the camera sees the floor around and under it.
+    let camera = camera_at(Vec3::new(1.5, 0.6, 0.3), Vec3::new(0.0, 0.0, 0.1), Vec3::Y, 0.4);
+    let (w, h) = (8, 8);
+    let settings = ReferenceSettings {
+        width: w,
+        height: h,
+        samples_per_pixel: 4096,
+        seed: 2,
+        pixel_centers: true,
+        ..Default::default()
+    };
+    let images = render(&scene, &camera, &settings);
+    assert_eq!(mean_rgb(&images.direct), Vec3::ZERO, "no analytic light, no direct light");
+    let (mut got_sum, mut want_sum) = (Vec3::ZERO, Vec3::ZERO);
+    for (x, yy) in (0..h).flat_map(|yy| (0..w).map(move |x| (x, yy))) {
+        let (o, dir) = camera.ray(x as f32 + 0.5, yy as f32 + 0.5, w, h);
+        let p = o + dir * (-o.y / dir.y);
+        let e = le.to_array().map(|l| crate::emitters::parallel_rectangle_irradiance(l, y, [-0.5 - p.x, 0.5 - p.x], [-0.3 - p.z, 0.3 - p.z]));
+        let want = Vec3::from_array(e) * rho / PI;
+        let got = images.indirect.get(x, yy);
+        let got = Vec3::new(got[0], got[1], got[2]);
+        assert_rel(got, want, 0.06, &format!("pixel ({x}, {yy}) at {p}"));
+        got_sum += got;
+        want_sum += want;
+    }
+    assert_rel(got_sum, want_sum, 0.015, "mean over the pixels");
+}

@@ -13,6 +13,7 @@ use super::generate::{
 };
 use crate::background::BackgroundJob;
 use crate::camera::{DiffuseGi, GiDebugView, GiMethod};
+use crate::emitters::{EmitterSamples, GpuEmitter};
 use crate::ssbc::SsbcRequest;
 use crate::light::GiLight;
 use crate::scene::SceneSnapshot;
@@ -84,6 +85,8 @@ struct VplKey {
     geometry: u64,
     lights: u64,
     gi_lights: Vec<Entity>,
+    /// The emissive surfaces' samples ([`EmitterSamples::generation`]).
+    emitters: u64,
     walk: WalkSettings,
     /// The guides the paths were drawn from (they change when a camera crosses to another side of a
     /// surface the lights reach, not with every camera move).
@@ -133,6 +136,7 @@ pub(crate) fn update_vpls(
     snapshot: Option<Res<SceneSnapshot>>,
     cameras: Query<(Entity, &Camera, &DiffuseGi, Option<&VplSettings>, &GlobalTransform)>,
     gi_lights: Query<Entity, With<GiLight>>,
+    emitters: Option<Res<EmitterSamples>>,
     mut cost: ResMut<crate::MainThreadCost>,
 ) {
     let start = std::time::Instant::now();
@@ -144,10 +148,9 @@ pub(crate) fn update_vpls(
         }
         return;
     };
+    // The snapshot holds the geometry the paths cross and the emissive surfaces they may start on.
     let Some(snapshot) = snapshot else {
-        if !gi_lights.is_empty() {
-            commands.init_resource::<SceneSnapshot>();
-        }
+        commands.init_resource::<SceneSnapshot>();
         return;
     };
     let walks = &mut *walks;
@@ -198,7 +201,14 @@ pub(crate) fn update_vpls(
         .unwrap_or_default();
     let count = (settings.ism_points.saturating_mul(POINT_RUNS)).min(MAX_POINTS);
     let key = WalkKey {
-        vpls: VplKey { geometry: snapshot.geometry_generation, lights: snapshot.light_generation, gi_lights: lights, walk, guides },
+        vpls: VplKey {
+            geometry: snapshot.geometry_generation,
+            lights: snapshot.light_generation,
+            gi_lights: lights,
+            emitters: emitters.as_ref().map_or(0, |e| e.generation),
+            walk,
+            guides,
+        },
         layout: snapshot.layout_generation,
         points: count,
         maps: (settings.visibility == VplVisibility::Traced).then(|| super::render::ism_side(settings.ism_resolution)),
@@ -207,9 +217,10 @@ pub(crate) fn update_vpls(
         let mut caches = walks.caches.take().unwrap_or_default();
         let snapshot = snapshot.clone();
         let walk_key = key.clone();
+        let emitters = emitters.as_ref().map(|e| e.samples.clone()).unwrap_or_default();
         walks.job.start(key.clone(), move || {
             let started = std::time::Instant::now();
-            let (vpls, points, maps) = walk_scene(&mut caches, &snapshot, &walk_key, &positions);
+            let (vpls, points, maps) = walk_scene(&mut caches, &snapshot, &emitters, &walk_key, &positions);
             Walked { caches, vpls, points, maps, ms: started.elapsed().as_secs_f32() * 1000.0 }
         });
     }
@@ -231,6 +242,7 @@ pub(crate) fn update_vpls(
 fn walk_scene(
     caches: &mut WalkCaches,
     snapshot: &SceneSnapshot,
+    emitters: &[GpuEmitter],
     key: &WalkKey,
     viewers: &[Vec3],
 ) -> (Option<(Arc<Vec<Vpl>>, f32)>, Option<Vec<IsmPoint>>, Option<Option<(u32, Arc<Vec<u32>>)>>) {
@@ -248,7 +260,7 @@ fn walk_scene(
     let vpl_key = VplKey { guides: guides.unwrap_or_default(), ..key.vpls.clone() };
     let mut vpls = None;
     if caches.vpl_key.as_ref() != Some(&vpl_key) {
-        caches.vpls = Arc::new(generate_vpls(snapshot, &sources, Some(&vpl_key.guides), *walk));
+        caches.vpls = Arc::new(generate_vpls(snapshot, &sources, emitters, Some(&vpl_key.guides), *walk));
         vpls = Some((caches.vpls.clone(), surface_area(snapshot)));
         caches.vpl_key = Some(vpl_key.clone());
     }

@@ -10,6 +10,7 @@ use std::f32::consts::{PI, TAU};
 
 use bevy::math::{Vec2, Vec3};
 
+use crate::emitters::GpuEmitter;
 use crate::sampling::{SobolStream, cosine_hemisphere, orthonormal_basis};
 #[cfg(test)]
 use crate::ssbc::bounding_radius;
@@ -244,53 +245,58 @@ pub fn pilot_hits(snapshot: &SceneSnapshot, light: &SnapshotLight) -> PilotHits 
     )
 }
 
-/// Traces `settings.paths` light paths from `lights` through `snapshot` and returns a VPL at each surface
-/// hit of every path, up to `settings.bounces` hits. With `guides` (one per light), the paths are drawn
-/// from each light's [`EmissionGuide`] and split between the lights by power times the guide's mean
-/// weight; without, uniformly and by power.
+/// Traces `settings.paths` light paths from `lights` and the emissive surfaces' point samples `emitters`
+/// ([`crate::emitters`]) through `snapshot` and returns a VPL at each surface hit of every path, up to
+/// `settings.bounces` hits. With `guides` (one per light), the lights' paths are drawn from each light's
+/// [`EmissionGuide`] and split between the lights by power times the guide's mean weight; without,
+/// uniformly and by power.
 ///
-/// Paths are split between the lights by power (at least one each) and start from an Owen-scrambled
-/// Sobol sequence, so the set is stratified and the same for the same inputs. A path's first VPL has the
-/// light's flux reflected at the first surface it reaches (what the light's reflective shadow map stores
-/// for that texel, `ρ·Φ_T`); each further VPL continues in a cosine-distributed direction, which is the
-/// distribution of a diffuse VPL's emitted flux, so the flux it carries is the previous VPL's flux times
-/// the new surface's albedo (no division by a pdf is needed: cosine sampling is exact for a Lambertian
-/// emitter). Paths end by Russian roulette on the albedo (Keller 1997), so a room with albedo ρ gets
-/// about `1/(1 − ρ)` VPLs per path and every bounce order up to `bounces` without bias: the sum over
-/// bounce-`k` VPLs estimates the flux reflected by the `k`-th surfaces light reaches.
+/// Paths are split between the sources by power (at least one each) and start from an Owen-scrambled
+/// Sobol sequence, so the set is stratified and the same for the same inputs. A light's path has its first
+/// VPL at the first surface it reaches, with the light's flux reflected there (what the light's reflective
+/// shadow map stores for that texel, `ρ·Φ_T`); each further VPL continues in a cosine-distributed
+/// direction, which is the distribution of a diffuse VPL's emitted flux, so the flux it carries is the
+/// previous VPL's flux times the new surface's albedo (no division by a pdf is needed: cosine sampling is
+/// exact for a Lambertian emitter). Paths end by Russian roulette on the albedo (Keller 1997), so a room
+/// with albedo ρ gets about `1/(1 − ρ)` VPLs per path and every bounce order up to `bounces` without bias:
+/// the sum over bounce-`k` VPLs estimates the flux reflected by the `k`-th surfaces light reaches.
+///
+/// An emissive surface is itself a diffuse emitter, which is what a VPL is: an emitter path starts with a
+/// VPL of bounce 0 on one of the emitter samples (two-sided, as the tracer's emitters are: a random face,
+/// with twice the sample's one-sided flux `π L_e A / M`), and walks on from it like a VPL (Keller 1997
+/// starts instant radiosity's paths on area lights the same way). Bevy draws no light from emissive
+/// materials, so these VPLs carry the emitters' direct light as well as its bounces.
 pub fn generate_vpls(
     snapshot: &SceneSnapshot,
     lights: &[SnapshotLight],
+    emitters: &[GpuEmitter],
     guides: Option<&[EmissionGuide]>,
     settings: WalkSettings,
 ) -> Vec<Vpl> {
     let Some(bounds) = snapshot.bounds() else {
         return Vec::new();
     };
-    if lights.is_empty() || settings.paths == 0 || settings.bounces == 0 {
+    if (lights.is_empty() && emitters.is_empty()) || settings.paths == 0 || settings.bounces == 0 {
         return Vec::new();
     }
     let epsilon = snapshot.ray_epsilon();
     let extent = bounds.1 - bounds.0;
     let across = extent.x * extent.z + extent.x * extent.y + extent.y * extent.z;
     let guide = |i: usize| guides.and_then(|g| g.get(i));
-    let powers: Vec<f32> = lights
+    // One power per light, then the emitters' (both faces), in lumens of the brightest channel.
+    let emitter_power = 2.0 * emitters.iter().map(|e| e.flux.truncate().max_element().max(0.0)).sum::<f32>();
+    let mut powers: Vec<f32> = lights
         .iter()
         .enumerate()
         .map(|(i, l)| light_power(l, across).max(0.0) * guide(i).map_or(1.0, EmissionGuide::mean))
         .collect();
-    let total: f32 = powers.iter().sum::<f32>().max(1e-20);
+    if !emitters.is_empty() {
+        powers.push(if emitter_power.is_finite() { emitter_power } else { 0.0 });
+    }
+    let counts = split_paths(settings.paths, &powers);
     let mut vpls = Vec::with_capacity((settings.paths * settings.bounces) as usize);
-    let mut assigned = 0u32;
-    for (index, (light, power)) in lights.iter().zip(&powers).enumerate() {
-        let remaining_lights = (lights.len() - index) as u32;
-        let count = if index + 1 == lights.len() {
-            settings.paths.saturating_sub(assigned).max(1)
-        } else {
-            ((settings.paths as f32 * power / total).round() as u32)
-                .clamp(1, settings.paths.saturating_sub(assigned + remaining_lights - 1).max(1))
-        };
-        assigned += count;
+    for (index, light) in lights.iter().enumerate() {
+        let count = counts[index];
         let stream = SobolStream::new(settings.seed as u64, index as u64);
         for i in 0..count {
             let u = stream.vertex_4d(i, 0);
@@ -299,16 +305,60 @@ pub fn generate_vpls(
                 continue;
             };
             emission.flux *= weight;
-            walk(snapshot, light, emission, &stream, i, settings.bounces, epsilon, &mut vpls);
+            walk(snapshot, Some(light), emission, &stream, i, settings.bounces, epsilon, &mut vpls);
+        }
+    }
+    if let Some(&count) = counts.get(lights.len()) {
+        let stream = SobolStream::new(settings.seed as u64, 0xE417 + lights.len() as u64);
+        let m = emitters.len();
+        for i in 0..count {
+            let u = stream.vertex_4d(i, 0);
+            let e = emitters[((u[0] * m as f32) as usize).min(m - 1)];
+            let face = if u[1] < 0.5 { 1.0 } else { -1.0 };
+            let normal = e.normal.truncate() * face;
+            // Each sample is one of M with `π L_e A / M` per face; this path stands for M / count of them.
+            let flux = e.flux.truncate() * (2.0 * m as f32 / count as f32);
+            if normal == Vec3::ZERO || !flux.is_finite() || flux.max_element() <= 0.0 {
+                continue;
+            }
+            let position = e.position.truncate() + normal * epsilon;
+            vpls.push(Vpl { position, normal, flux, bounce: 0 });
+            let emission = Emission {
+                origin: position,
+                direction: cosine_hemisphere(normal, Vec2::new(u[2], u[3])),
+                flux,
+            };
+            walk(snapshot, None, emission, &stream, i, settings.bounces, epsilon, &mut vpls);
         }
     }
     vpls
 }
 
+/// `paths` split between sources of `powers` in proportion, at least one each (the last takes the
+/// remainder), as long as there are paths for all.
+fn split_paths(paths: u32, powers: &[f32]) -> Vec<u32> {
+    let total: f32 = powers.iter().sum::<f32>().max(1e-20);
+    let mut assigned = 0u32;
+    powers
+        .iter()
+        .enumerate()
+        .map(|(index, power)| {
+            let remaining = (powers.len() - index) as u32;
+            let count = if index + 1 == powers.len() {
+                paths.saturating_sub(assigned).max(1)
+            } else {
+                ((paths as f32 * power / total).round() as u32).clamp(1, paths.saturating_sub(assigned + remaining - 1).max(1))
+            };
+            assigned += count;
+            count
+        })
+        .collect()
+}
+
 #[expect(clippy::too_many_arguments, reason = "one light path's state")]
 fn walk(
     snapshot: &SceneSnapshot,
-    light: &SnapshotLight,
+    light: Option<&SnapshotLight>,
     emission: Emission,
     stream: &SobolStream,
     index: u32,
@@ -322,7 +372,7 @@ fn walk(
             return;
         };
         let surface = snapshot.surface(origin, direction, &hit);
-        if bounce == 1 {
+        if let Some(light) = light.filter(|_| bounce == 1) {
             flux *= first_hit_falloff(light, hit.t);
         }
         // The side the light arrives on.
@@ -459,42 +509,68 @@ pub fn paraboloid_direction(normal: Vec3, side: u32, x: u32, y: u32) -> Option<V
 }
 
 /// Ray-traced shadow maps: for every VPL, a `side`² paraboloid map of the distance, through each texel's
-/// centre, to the second surface the ray meets (the far side of the first occluder), stored as the GPU's
-/// imperfect shadow maps store depths (the bits of `1/d`, 0 where nothing is there), VPL after VPL with
-/// `side²` words each.
+/// centre, to the far side of the first occluder, stored as the GPU's imperfect shadow maps store depths
+/// (the bits of `1/d`, 0 where nothing is there), VPL after VPL with `side²` words each.
 ///
 /// Imperfect shadow maps splat a few thousand points per VPL: a wall thinner than the gaps between its
 /// points lets light through, and a generated two-room family showed it on most rooms lit next door (a
 /// 28 cm wall: the camera's room at 1.9× its light, `docs/unseen_rooms.md`). One ray per texel through
 /// the snapshot's BVH sees every wall, whatever its thickness. The rays run with the walks, in the
 /// background: VPLs × side² × 2 rays (about 650 000 for the medium preset's VPLs at 32²).
+///
+/// The far side of a solid occluder is the second surface the ray meets, its exit (second-depth shadow
+/// maps, Wang & Molnar 1994): the first surface stays lit across the texel whatever its slope. A sheet
+/// (a quad without a back, such as Bevy's `Plane3d`: the ray's next surface is not an exit from it) has no
+/// far side; its own depth plus the spread of its depth over the gather's 2×2 texels ([`sheet_depth`]) is
+/// stored instead. With the second surface behind a sheet, an emissive panel hung 1 mm under a ceiling
+/// let the ceiling's light from the panel's upper face through into the room (`emissive_panel` at 1.19×
+/// its energy).
 pub fn traced_shadow_maps(snapshot: &SceneSnapshot, vpls: &[Vpl], side: u32) -> Vec<u32> {
     use rayon::prelude::*;
     let texels = (side * side) as usize;
     let mut maps = vec![0u32; vpls.len() * texels];
+    let epsilon = snapshot.ray_epsilon();
     maps.par_chunks_mut(texels).zip(vpls.par_iter()).for_each(|(map, vpl)| {
         for y in 0..side {
             for x in 0..side {
                 let Some(direction) = paraboloid_direction(vpl.normal, side, x, y) else {
                     continue;
                 };
-                // The far side of the first occluder (second-depth shadow maps, Wang & Molnar 1994): the
-                // first surface a texel sees stays lit across the texel whatever its slope, and anything
-                // behind the occluder is shadowed. Nothing behind the first surface: the ray left the
-                // scene there, and nothing further needs a shadow.
+                // Nothing in this direction: the ray left the scene, and nothing further needs a shadow.
                 let Some(first) = snapshot.intersect(vpl.position, direction, 0.0, f32::INFINITY) else {
                     continue;
                 };
-                let far = first.t + snapshot.ray_epsilon();
-                if let Some(second) = snapshot.intersect(vpl.position, direction, far, f32::INFINITY)
-                    && second.t > 0.0
-                {
-                    map[(y * side + x) as usize] = (1.0 / second.t).to_bits();
+                let cos_first = snapshot.surface(vpl.position, direction, &first).geometric_normal.dot(direction);
+                let second = snapshot.intersect(vpl.position, direction, first.t + epsilon, f32::INFINITY);
+                let exit = second.as_ref().filter(|s| {
+                    // Entered at the first surface and left at the second: a solid's far side.
+                    cos_first < 0.0 && snapshot.surface(vpl.position, direction, s).geometric_normal.dot(direction) > 0.0
+                });
+                let far = match (exit, second) {
+                    (Some(exit), _) => exit.t,
+                    (None, second) => {
+                        let sheet = sheet_depth(first.t, cos_first.abs(), side) + epsilon;
+                        second.map_or(sheet, |s| s.t.min(sheet))
+                    }
+                };
+                if far > 0.0 && far.is_finite() {
+                    map[(y * side + x) as usize] = (1.0 / far).to_bits();
                 }
             }
         }
     });
     maps
+}
+
+/// The depth stored behind a sheet met at distance `d` with cosine `cos` between its normal and the ray:
+/// `d (1 + 0.02 + (8/side) tan θ)`. A texel spans up to 4/side radians (the paraboloid's centre) and the
+/// gather filters 2×2 texels, so a surface tilted by θ spans up to `d (8/side) tan θ` of depth across what
+/// one lookup reads; `tan θ` is capped at 8 (the receivers beyond get less than an eighth of the light by
+/// their cosine), and 2 % covers the ray's own precision.
+pub fn sheet_depth(d: f32, cos: f32, side: u32) -> f32 {
+    let cos = cos.clamp(1e-3, 1.0);
+    let tan = ((1.0 - cos * cos).max(0.0).sqrt() / cos).min(8.0);
+    d * (1.02 + 8.0 / side.max(1) as f32 * tan)
 }
 
 /// Total surface area of the snapshot, m².
@@ -566,6 +642,33 @@ mod tests {
         assert!((far_floor - vpl.position).length() <= lookup(far_floor), "the open floor is shadowed");
     }
 
+    #[test]
+    fn traced_shadow_maps_shadow_behind_a_sheet_without_a_back() {
+        // A 1 m sheet (one quad, as a `Plane3d` panel) 1 m over a floor, and a VPL 0.5 m over the sheet
+        // facing down: the floor under the sheet is shadowed (its second surface, the floor, is no exit
+        // from the sheet), the sheet itself and the open floor are lit.
+        let mut triangles = quad([Vec3::new(-5.0, 0.0, -5.0), Vec3::new(-5.0, 0.0, 5.0), Vec3::new(5.0, 0.0, 5.0), Vec3::new(5.0, 0.0, -5.0)], 0).to_vec();
+        triangles.extend(quad([Vec3::new(-0.5, 1.0, -0.5), Vec3::new(0.5, 1.0, -0.5), Vec3::new(0.5, 1.0, 0.5), Vec3::new(-0.5, 1.0, 0.5)], 0));
+        let snapshot = SceneSnapshot::build(triangles, vec![material(0.5)], vec![], vec![]);
+        let vpl = Vpl { position: Vec3::new(0.0, 1.5, 0.0), normal: Vec3::NEG_Y, flux: Vec3::ONE, bounce: 1 };
+        let side = 32;
+        let maps = traced_shadow_maps(&snapshot, &[vpl], side);
+        let lookup = |p: Vec3| {
+            let uv = paraboloid_coords(vpl.normal, (p - vpl.position).normalize(), side);
+            let stored = maps[(uv.y as u32 * side + uv.x as u32) as usize];
+            if stored == 0 { f32::INFINITY } else { 1.0 / f32::from_bits(stored) }
+        };
+        let distance = |p: Vec3| (p - vpl.position).length();
+        for under in [Vec3::new(0.0, 0.0, 0.0), Vec3::new(0.2, 0.0, -0.3)] {
+            assert!(distance(under) > lookup(under) + 0.5, "light goes through the sheet to {under}: stored {}", lookup(under));
+        }
+        for on in [Vec3::new(0.1, 1.0, 0.05), Vec3::new(-0.4, 1.0, 0.3)] {
+            assert!(distance(on) <= lookup(on), "the sheet shadows itself at {on}");
+        }
+        let open = Vec3::new(2.5, 0.0, 0.0);
+        assert!(distance(open) <= lookup(open), "the open floor is shadowed");
+    }
+
     fn quad(corners: [Vec3; 4], material: u32) -> [InputTriangle; 2] {
         let [a, b, c, d] = corners;
         [InputTriangle::flat([a, b, c], material), InputTriangle::flat([a, c, d], material)]
@@ -615,7 +718,7 @@ mod tests {
             spot_scale: scale,
             spot_offset: offset,
         };
-        let vpls = generate_vpls(&snap, &[spot], None, WalkSettings { paths: 1024, bounces: 1, seed: 3 });
+        let vpls = generate_vpls(&snap, &[spot], &[], None, WalkSettings { paths: 1024, bounces: 1, seed: 3 });
         assert_eq!(vpls.len(), 1024);
         let total: Vec3 = vpls.iter().map(|v| v.flux).sum();
         // Hard cone (inner = outer): Φ = I · 2π(1 − cos 0.5).
@@ -625,7 +728,7 @@ mod tests {
         }
         assert!(vpls.iter().all(|v| v.bounce == 1 && v.normal.y > 0.99 && v.position.y > 0.0));
         // Stable: the same inputs give the same VPLs.
-        assert_eq!(vpls, generate_vpls(&snap, &[spot], None, WalkSettings { paths: 1024, bounces: 1, seed: 3 }));
+        assert_eq!(vpls, generate_vpls(&snap, &[spot], &[], None, WalkSettings { paths: 1024, bounces: 1, seed: 3 }));
     }
 
     /// White furnace: inside a closed box of albedo ρ no light escapes, so the flux reflected by the k-th
@@ -639,7 +742,7 @@ mod tests {
         let intensity = Vec3::splat(10.0);
         let point = SnapshotLight::Point { position: Vec3::new(0.1, 0.2, -0.1), intensity, inverse_range_squared: 0.0 };
         let bounces = 4;
-        let vpls = generate_vpls(&snap, &[point], None, WalkSettings { paths: 4096, bounces, seed: 1 });
+        let vpls = generate_vpls(&snap, &[point], &[], None, WalkSettings { paths: 4096, bounces, seed: 1 });
         let emitted = intensity.x * 4.0 * PI;
         for k in 1..=bounces {
             let flux: f32 = vpls.iter().filter(|v| v.bounce == k).map(|v| v.flux.x).sum();
@@ -680,7 +783,7 @@ mod tests {
             PI * sum / directions.len() as f32
         };
         let (once, twice) = (traced(None, 1), traced(Some(1), 2));
-        let vpls = generate_vpls(&snap, &[point], None, WalkSettings { paths: 4096, bounces: 2, seed: 9 });
+        let vpls = generate_vpls(&snap, &[point], &[], None, WalkSettings { paths: 4096, bounces: 2, seed: 9 });
         let gathered = |k: u32| -> f32 {
             vpls.iter().filter(|v| v.bounce == k).map(|v| v.flux.x / PI * geometry_term(p, n, v.position, v.normal)).sum()
         };
@@ -701,7 +804,7 @@ mod tests {
         .to_vec();
         let snap = snapshot(floor, 0.5);
         let sun = SnapshotLight::Directional { direction: Vec3::NEG_Y, illuminance: Vec3::splat(1000.0) };
-        let vpls = generate_vpls(&snap, &[sun], None, WalkSettings { paths: 4096, bounces: 1, seed: 0 });
+        let vpls = generate_vpls(&snap, &[sun], &[], None, WalkSettings { paths: 4096, bounces: 1, seed: 0 });
         let total: f32 = vpls.iter().map(|v| v.flux.x).sum();
         // 16 m² of floor at 1000 lx, albedo 0.5; the beam rectangle has a 0.1 % margin: within 1 %.
         assert!(close(total, 8000.0, 0.01), "{total}");
@@ -715,9 +818,9 @@ mod tests {
         let sun = snap.lights[0].light;
         let inside = |v: &Vpl| v.position.y < 5.99 && v.position.x.abs() < 6.0 && v.position.z.abs() < 4.0;
         let settings = WalkSettings { paths: 2048, bounces: 1, seed: 2 };
-        let uniform = generate_vpls(&snap, &[sun], None, settings);
+        let uniform = generate_vpls(&snap, &[sun], &[], None, settings);
         let guide = EmissionGuide::from_pilots(&pilot_hits(&snap, &sun), &[crate::scenes::sponza_like::CAMERA_POSITION]);
-        let guided = generate_vpls(&snap, &[sun], Some(&[guide]), settings);
+        let guided = generate_vpls(&snap, &[sun], &[], Some(&[guide]), settings);
         let share = |v: &[Vpl]| v.iter().filter(|v| inside(v)).count() as f32 / v.len() as f32;
         let flux_in = |v: &[Vpl]| v.iter().filter(|v| inside(v)).map(|v| v.flux.x).sum::<f32>();
         assert!(share(&uniform) < 0.2, "uniform: {}", share(&uniform));
@@ -750,5 +853,53 @@ mod tests {
         }
         assert!(close(surface_area(&snap), 24.0, 1e-5));
         assert!(close(bounding_radius(automatic_bound(600, 24.0)), 0.2, 1e-5));
+    }
+
+    #[test]
+    fn an_emissive_panel_starts_paths_whose_vpls_give_its_closed_form_irradiance() {
+        // A black 1 × 0.6 m panel of radiance Le, 0.8 m over a 40 m floor of albedo 0.5.
+        let le = Vec3::new(30.0, 20.0, 10.0);
+        let glow = SnapshotMaterial { emissive: le, diffuse: Vec3::ZERO, ..SnapshotMaterial::DEFAULT_GREY };
+        let y = 0.8;
+        let mut triangles =
+            quad([Vec3::new(-0.5, y, -0.3), Vec3::new(0.5, y, -0.3), Vec3::new(0.5, y, 0.3), Vec3::new(-0.5, y, 0.3)], 1).to_vec();
+        triangles.extend(quad([Vec3::new(-20.0, 0.0, -20.0), Vec3::new(-20.0, 0.0, 20.0), Vec3::new(20.0, 0.0, 20.0), Vec3::new(20.0, 0.0, -20.0)], 0));
+        let snap = SceneSnapshot::build(triangles, vec![material(0.5), glow], vec![], vec![]);
+        let (emitters, _) = crate::emitters::sample_emitters(&snap, 1.0, crate::emitters::MAX_EMITTER_SAMPLES);
+        let settings = WalkSettings { paths: 4096, bounces: 1, seed: 5 };
+        let vpls = generate_vpls(&snap, &[], &emitters, None, settings);
+        assert_eq!(vpls, generate_vpls(&snap, &[], &emitters, None, settings), "the same inputs give the same VPLs");
+
+        // Bounce 0: on the panel, both faces, with the panel's two-sided flux 2 π Le A in all.
+        let direct: Vec<&Vpl> = vpls.iter().filter(|v| v.bounce == 0).collect();
+        assert_eq!(direct.len(), 4096);
+        let area = 0.6;
+        let emitted: Vec3 = direct.iter().map(|v| v.flux).sum();
+        let want = 2.0 * PI * le * area;
+        assert!((emitted - want).abs().max_element() < 1e-3 * want.x, "{emitted} vs {want}");
+        let down = direct.iter().filter(|v| v.normal.y < 0.0).count();
+        assert!((down as i32 - 2048).abs() < 100, "{down} of 4096 face the floor");
+        assert!(direct.iter().all(|v| (v.position.y - y).abs() < 1e-2 && v.normal.y.abs() > 0.999));
+
+        // Their irradiance at the floor is the closed form's (what the gather adds, unclamped and unshadowed).
+        for p in [Vec3::ZERO, Vec3::new(0.4, 0.0, 0.1), Vec3::new(-1.2, 0.0, 0.9)] {
+            let e: Vec3 = direct
+                .iter()
+                .map(|v| {
+                    let to = p - v.position;
+                    let w = to.normalize();
+                    v.flux / PI * v.normal.dot(w).max(0.0) * (-w.y).max(0.0) / to.length_squared()
+                })
+                .sum();
+            for (channel, got) in [(le.x, e.x), (le.y, e.y), (le.z, e.z)] {
+                let want = crate::emitters::parallel_rectangle_irradiance(channel, y, [-0.5 - p.x, 0.5 - p.x], [-0.3 - p.z, 0.3 - p.z]);
+                assert!(close(got, want, 0.04), "at {p}: {got} lx vs {want} lx");
+            }
+        }
+        // Bounce 1: the floor reflects ρ of the down face's flux π Le A (the floor catches nearly all of it).
+        let reflected: Vec3 = vpls.iter().filter(|v| v.bounce == 1).map(|v| v.flux).sum();
+        let want = 0.5 * PI * le * area;
+        assert!(((reflected - want) / want).abs().max_element() < 0.03, "{reflected} vs {want}");
+        assert!(vpls.iter().filter(|v| v.bounce == 1).all(|v| v.position.y.abs() < 1e-2 && v.normal.y > 0.99));
     }
 }
