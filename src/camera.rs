@@ -96,12 +96,13 @@ pub enum GiMethod {
     Vpl,
     /// The reflective shadow map gather (Dachsbacher & Stamminger 2005): each pixel sums the texels of
     /// every GI light's RSM in a disk around its projection, as point lights without visibility. One
-    /// bounce, no indirect shadows; no volume. Settings:
+    /// bounce of the GI lights' light (not of emissive surfaces), no indirect shadows; no volume. Settings:
     /// [`RsmGatherSettings`](crate::rsm_gather::RsmGatherSettings) on the camera.
     RsmGather,
     /// Direct Radiance Mapping (Frisvad et al. 2005): each pixel gathers a few regularly spaced
     /// "sample photons" of every GI light's direct radiance map (its RSM), weighted by an approximate
-    /// solid angle. One bounce, no indirect shadows; the cheapest method. Settings:
+    /// solid angle. One bounce of the GI lights' light (not of emissive surfaces), no indirect shadows;
+    /// the cheapest method. Settings:
     /// [`DrmSettings`](crate::drm::DrmSettings) on the camera.
     Drm,
     /// Hierarchical radiosity with implicit visibility (Dong et al. 2007): multi-bounce light between

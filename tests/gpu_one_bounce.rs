@@ -210,6 +210,38 @@ fn drm_photons_follow_a_moving_light_every_frame() {
 }
 
 #[test]
+fn a_scene_lit_by_emissive_surfaces_alone_warns_once_that_the_gathers_bounce_only_gi_lights() {
+    // emissive_panel has no GiLight: the RSM gather and DRM have nothing to gather and say so, once;
+    // cornell (a GiLight spot) gets no such warning.
+    let warnings = |scene, method| {
+        let report = render(&HeadlessOptions {
+            scene,
+            method: HeadlessMethod::Gi(method),
+            indirect_only: true,
+            size: bevy::math::UVec2::splat(32),
+            frames: 6,
+            ..Default::default()
+        });
+        let all: Vec<String> =
+            report.sidecar["warnings"].as_array().expect("warnings").iter().map(|w| w.as_str().unwrap_or_default().to_owned()).collect();
+        (report.image, all.into_iter().filter(|w| w.contains("emissive surfaces alone")).collect::<Vec<_>>())
+    };
+    for method in [GiMethod::RsmGather, GiMethod::Drm] {
+        let test = format!("one_bounce_emissive_only_{method:?}");
+        let (image, found) = warnings(StandardScene::EmissivePanel, method);
+        check(
+            &test,
+            found.len() == 1 && found[0].contains(&format!("GiMethod::{method:?}")) && found[0].contains("add a GiLight"),
+            &image,
+            None,
+            format!("warnings about emissive-only lighting: {found:?}"),
+        );
+        let (image, found) = warnings(StandardScene::Cornell, method);
+        check(&test, found.is_empty(), &image, None, format!("cornell has a GiLight, yet: {found:?}"));
+    }
+}
+
+#[test]
 fn asking_a_per_pixel_method_for_the_irradiance_volume_output_composites_instead() {
     // Only Radiance Hints has a volume to export. A camera that asks the RSM gather for
     // `GiOutput::IrradianceVolume` gets the composited light (and one warning), not an image without

@@ -434,6 +434,7 @@ impl Plugin for RsmPlugin {
     fn build(&self, app: &mut App) {
         let shader = crate::add_shader(app, "rsm/rsm.wgsl", include_str!("../../shaders/rsm/rsm.wgsl"));
         let types = crate::add_shader(app, "rsm/rsm_types.wgsl", include_str!("../../shaders/rsm/rsm_types.wgsl"));
+        app.add_systems(PostUpdate, warn_emissive_only_lighting);
         let Some(render_app) = app.get_sub_app_mut(RenderApp) else {
             return;
         };
@@ -449,6 +450,56 @@ impl Plugin for RsmPlugin {
             )
             .add_systems(Render, prepare_rsm.in_set(RenderSystems::PrepareResources))
             .add_systems(RenderGraph, draw_rsm.in_set(RenderGraphSystems::Render).before(camera_driver));
+    }
+}
+
+/// Frames the scene must stay lit by emissive surfaces alone before [`warn_emissive_only_lighting`] warns:
+/// an app that adds its `GiLight`s a frame after the scene spawns (a glTF's lights once they exist) is
+/// not warned.
+const EMISSIVE_ONLY_FRAMES: u32 = 3;
+
+/// Warns once per camera and method when a camera uses a method that gathers the GI lights' RSMs per pixel
+/// ([`GiMethod::gathers_rsm_per_pixel`](crate::camera::GiMethod::gathers_rsm_per_pixel): the RSM gather,
+/// DRM) in a scene whose only light is emissive: an RSM is rendered from a `GiLight`, so those methods
+/// bounce nothing there, and the image has no GI without anything telling the user why.
+pub(crate) fn warn_emissive_only_lighting(
+    cameras: Query<(Entity, &Camera, &crate::camera::DiffuseGi)>,
+    lights: Query<(), With<crate::light::GiLight>>,
+    meshes: Query<&MeshMaterial3d<StandardMaterial>>,
+    materials: Option<Res<Assets<StandardMaterial>>>,
+    mut frames: Local<u32>,
+    mut warned: Local<bevy::platform::collections::HashSet<(Entity, crate::camera::GiMethod)>>,
+    mut warnings: ResMut<crate::DiffuseGiWarnings>,
+) {
+    // Cheap first: a camera that would be warned, and no GiLight; only then look for emissive meshes (the
+    // snapshot, which samples the emitters, does not exist for these methods without a GiLight).
+    let unwarned = cameras
+        .iter()
+        .any(|(entity, camera, gi)| camera.is_active && gi.enabled && gi.method.gathers_rsm_per_pixel() && !warned.contains(&(entity, gi.method)));
+    let emissive = |m: &MeshMaterial3d<StandardMaterial>| {
+        materials.as_ref().and_then(|a| a.get(&m.0)).is_some_and(|m| {
+            let e = m.emissive;
+            e.red.max(e.green).max(e.blue) > 0.0 && e.red.is_finite() && e.green.is_finite() && e.blue.is_finite()
+        })
+    };
+    let emissive_only = unwarned && lights.is_empty() && meshes.iter().any(emissive);
+    *frames = if emissive_only { frames.saturating_add(1) } else { 0 };
+    if *frames < EMISSIVE_ONLY_FRAMES {
+        return;
+    }
+    for (entity, camera, gi) in &cameras {
+        if camera.is_active && gi.enabled && gi.method.gathers_rsm_per_pixel() && warned.insert((entity, gi.method)) {
+            crate::gi_warning(
+                &mut warnings,
+                format!(
+                    "bevy_diffuse_gi: camera {entity} uses GiMethod::{:?}, which bounces only the light of GiLights (it \
+                     gathers their reflective shadow maps), but this scene is lit by emissive surfaces alone: it gets no \
+                     bounced light. Use Vpl, RadianceHints, Radiosity or PhotonGrid, which bounce emissive light, or add \
+                     a GiLight",
+                    gi.method
+                ),
+            );
+        }
     }
 }
 

@@ -84,6 +84,11 @@ use crate::settings::{Clamped, GiSettings};
 /// The settings of the RSM gather, on a camera with [`DiffuseGi`](crate::camera::DiffuseGi)
 /// `{ method: GiMethod::RsmGather, .. }`. A camera without it uses [`RsmGatherSettings::default`] (the
 /// medium preset). Invalid values are clamped to their range with one warning.
+///
+/// Only the light of [`GiLight`](crate::light::GiLight)s bounces (the method gathers their reflective
+/// shadow maps): emissive surfaces are not gathered, and a scene lit by them alone gets no bounced light
+/// from this method and one warning; [`GiMethod::Vpl`](crate::camera::GiMethod::Vpl), Radiance Hints,
+/// radiosity and the photon grid bounce emissive light.
 #[derive(Component, Reflect, Clone, Debug, PartialEq)]
 #[reflect(Component, Default, Clone)]
 #[doc(alias = "ReflectiveShadowMaps")]

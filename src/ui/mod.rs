@@ -146,6 +146,12 @@ fn inspector_ui(
                     });
                 ui.checkbox(&mut g.half_resolution, "half resolution (every method)");
                 commit(g, &mut gi);
+                if gi.method.gathers_rsm_per_pixel() && lights.is_empty() {
+                    ui.colored_label(
+                        egui::Color32::YELLOW,
+                        "no GiLight: this method bounces only GiLights' light (not emissive surfaces)",
+                    );
+                }
                 match gi.method {
                     GiMethod::Vpl => match vpl {
                         Some(mut settings) => {
