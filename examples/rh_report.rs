@@ -31,7 +31,7 @@ use bevy_diffuse_gi::radiance_hints::{DepthOcclusion, GridSizing, RadianceHintsV
 use bevy_diffuse_gi::scenes::StandardScene;
 use bevy_diffuse_gi::sh::ShOrder;
 
-const SECTIONS: &[&str] = &["presets", "scale", "reconstruction", "bounces", "ablation", "cellar", "tradeoff", "timing", "images"];
+const SECTIONS: &[&str] = &["presets", "scale", "units", "reconstruction", "bounces", "ablation", "cellar", "tradeoff", "timing", "images"];
 
 /// Static frames rendered before the image is kept: enough for the volume to finish refining, so the last
 /// ones time the per-frame cost of a still scene.
@@ -55,6 +55,7 @@ fn run() -> Result<(), String> {
         let table = match section.as_str() {
             "presets" => report.presets()?,
             "scale" => report.scale()?,
+            "units" => report.units()?,
             "reconstruction" => report.reconstruction(args.rounds)?,
             "bounces" => report.bounces()?,
             "ablation" => report.ablation()?,
@@ -255,6 +256,49 @@ impl Report {
             let plain_ms = plain.frame_ms();
             out += &row(self, truth, label, "**default** (medium)", rh_options(scene.clone(), RadianceHintsVolume::MEDIUM), plain_ms)?;
         }
+        Ok(out)
+    }
+
+    /// The same scene in other units: `emissive_panel` (its image does not depend on its scale) at 1×,
+    /// 100×, 250× (about Bevy's 557 m `CornellBox.glb`) and 1000×, with the default, and at 250× with the
+    /// grid the `max_cell` rule alone gave. Eight frames each (the old grid's take about half a minute
+    /// each on lavapipe): the frame time is that of a volume still refining, what a moving light or mesh
+    /// pays every frame.
+    fn units(&mut self) -> Result<String, String> {
+        let mut out = String::from(
+            "| scale | box | setting | mean chord | hints | volume memory | block rel. RMSE | pixel rel. RMSE | energy | frame while the volume refines | × the default at 1× |\n\
+             |---|---|---|---|---|---|---|---|---|---|---|\n",
+        );
+        let scaled = |scale: f32, rh: RadianceHintsVolume, frames: u32| HeadlessOptions {
+            scene_scale: scale,
+            frames,
+            ..rh_options(StandardScene::EmissivePanel, rh)
+        };
+        let mut at_one = None;
+        let mut row = |report: &mut Self, scale: f32, name: &str, options: HeadlessOptions| -> Result<String, String> {
+            let measured = report.render(&options)?;
+            let m = report.compare(measured.image(), "emissive_panel")?;
+            let rh = &measured.report.sidecar["radiance_hints"];
+            let ms = measured.frame_ms();
+            let one = *at_one.get_or_insert(ms);
+            Ok(format!(
+                "| {scale}× | {:.0} m | {name} | {} | {} | {} | {} | {:.0} ms | {:.2} |\n",
+                rh["volume_size"][0].as_f64().unwrap_or(0.0),
+                rh["mean_chord"].as_f64().map_or("–".into(), |c| format!("{c:.2} m")),
+                measured.hints(),
+                rh["memory_bytes"].as_u64().map_or("–".into(), mib),
+                metrics_cells(&m),
+                ms,
+                ms / one
+            ))
+        };
+        for scale in [1.0, 100.0, 250.0, 1000.0] {
+            out += &row(self, scale, "**default** (medium)", scaled(scale, RadianceHintsVolume::MEDIUM, 8))?;
+        }
+        // The grid `max_cell` alone gives the 250× box (2.004 × 2.014 × 2.004 m at 1×).
+        let before = GridSizing::MEDIUM.resolution_for(UVec3::ZERO, bevy::math::Vec3::new(2.004, 2.014, 2.004) * 250.0, None);
+        let fixed = RadianceHintsVolume { sizing: GridSizing::Fixed, resolution: before, ..RadianceHintsVolume::MEDIUM };
+        out += &row(self, 250.0, "before: `max_cell` in metres alone", scaled(250.0, fixed, 8))?;
         Ok(out)
     }
 

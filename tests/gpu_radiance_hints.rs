@@ -345,6 +345,44 @@ fn an_emissive_panel_alone_lights_the_room_in_its_own_colour() {
     within_measured(test, &image, &truth, MEASURED_PANEL.0, MEASURED_PANEL.1, MEASURED_PANEL.2);
 }
 
+#[test]
+fn the_same_scene_in_other_units_gets_the_same_hints_and_the_same_light() {
+    // emissive_panel at 1× and at 250× (about Bevy's 557 m CornellBox.glb): an emissive scene's image does
+    // not depend on its scale, and the adaptive grid follows the surfaces' mean chord, not metres. With
+    // `max_cell` in metres alone the large box got 51×51×51 hints and a frame 38× slower
+    // (`docs/radiance_hints.md`, § the same scene in other units).
+    let test = "rh_scene_units";
+    let run = |scene_scale| {
+        render(&HeadlessOptions {
+            scene: StandardScene::EmissivePanel,
+            method: HeadlessMethod::Gi(GiMethod::RadianceHints),
+            indirect_only: true,
+            size: bevy::math::UVec2::splat(64),
+            frames: 8,
+            scene_scale,
+            ..Default::default()
+        })
+    };
+    let (one, large) = (run(1.0), run(250.0));
+    let (a, b) = (&one.sidecar["radiance_hints"], &large.sidecar["radiance_hints"]);
+    let chord = |r: &serde_json::Value| r["mean_chord"].as_f64().unwrap_or(f64::NAN);
+    check(
+        test,
+        a["resolution"] == b["resolution"] && a["resolution"] == serde_json::json!([16, 16, 16]) && (chord(b) / chord(a) / 250.0 - 1.0).abs() < 0.01,
+        &large.image,
+        Some(&one.image),
+        format!("hints {} at 1× and {} at 250×, mean chord {:.3} m and {:.1} m", a["resolution"], b["resolution"], chord(a), chord(b)),
+    );
+    let m = metrics::compare(&large.image, &one.image).expect("same size");
+    check(
+        test,
+        m.block_relative_rmse < 0.05 && (m.energy_ratio - 1.0).abs() < 0.02,
+        &large.image,
+        Some(&one.image),
+        format!("250× against 1×: block rel. RMSE {:.3}, energy {:.3}", m.block_relative_rmse, m.energy_ratio),
+    );
+}
+
 /// Luminance along a row band of `image`, one value per column in `x0..x1`.
 fn row_profile(image: &HdrImage, rows: std::ops::Range<u32>, x0: u32, x1: u32) -> Vec<f32> {
     (x0..x1)
@@ -593,7 +631,7 @@ fn hints_beside_a_lit_wall_hold_its_light() {
 fn place_volume(home: &mut Option<bevy::prelude::Transform>, volume: &RadianceHintsVolume, transform: &mut bevy::prelude::Mut<bevy::prelude::Transform>, cells: f32) {
     use bevy::prelude::*;
     let home = *home.get_or_insert_with(|| Transform { scale: transform.scale * 1.5, ..**transform });
-    let cell = home.scale.x / volume.effective(home.to_matrix()).resolution.x as f32;
+    let cell = home.scale.x / volume.effective(home.to_matrix(), None).resolution.x as f32;
     let next = Transform { translation: home.translation + Vec3::X * (cells * cell), ..home };
     if **transform != next {
         **transform = next;

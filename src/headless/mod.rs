@@ -136,6 +136,9 @@ struct Headless {
     background_idle: u32,
     background_wait_frames: u32,
     background_timed_out: bool,
+    /// [`HeadlessOptions::scene_scale`]: frames since the scene was scaled (0 before), so that what reads
+    /// `GlobalTransform`s waits until the scale has propagated.
+    scaled_frames: u32,
 }
 
 /// Renders as `options` say and returns the images and the sidecar, without writing anything.
@@ -297,11 +300,12 @@ fn build_app(options: &HeadlessOptions, outcome: Arc<Mutex<Outcome>>) -> App {
         background_idle: 0,
         background_wait_frames: 0,
         background_timed_out: false,
+        scaled_frames: 0,
     })
     .add_systems(Startup, setup)
     .add_systems(Update, (attach_camera, spawn_rh_volume, animate_lights, switch_method, drive).chain())
     .init_resource::<HeadlessClock>()
-    .add_systems(Last, track_dynamic_scene);
+    .add_systems(Last, (track_dynamic_scene, scale_scene));
     app
 }
 
@@ -385,7 +389,7 @@ fn spawn_rh_volume(
 ) {
     let uses_rh = headless.options.method == HeadlessMethod::Gi(GiMethod::RadianceHints)
         || headless.options.switch_method.is_some_and(|(_, m)| m == GiMethod::RadianceHints);
-    if !uses_rh || headless.options.rh_cascade.is_some() || *status != SceneStatus::Ready || !volumes.is_empty() {
+    if !uses_rh || headless.options.rh_cascade.is_some() || *status != SceneStatus::Ready || !volumes.is_empty() || !scale_propagated(&headless) {
         return;
     }
     let Some((lo, hi)) = crate::scenes::mesh_bounds(meshes) else {
@@ -404,6 +408,62 @@ fn spawn_rh_volume(
     commands.spawn((settings, transform, Name::new("headless RH volume")));
 }
 
+/// [`HeadlessOptions::scene_scale`]: scales the scene once, at the end of the frame it is ready; the Radiance
+/// Hints volume is fitted around it once the scale has propagated ([`scale_propagated`]).
+fn scale_scene(world: &mut World) {
+    let headless = world.resource::<Headless>();
+    let scale = headless.options.scene_scale;
+    if headless.scaled_frames > 0 {
+        world.resource_mut::<Headless>().scaled_frames += 1;
+        return;
+    }
+    if scale == 1.0 || world.get_resource::<SceneStatus>() != Some(&SceneStatus::Ready) {
+        return;
+    }
+    scale_world(world, scale);
+    world.resource_mut::<Headless>().scaled_frames = 1;
+}
+
+/// Whether the scene's `GlobalTransform`s are those of its final scale (propagated in the `PostUpdate`
+/// after [`scale_scene`] ran in `Last`).
+fn scale_propagated(headless: &Headless) -> bool {
+    headless.options.scene_scale == 1.0 || headless.scaled_frames >= 2
+}
+
+/// Scales every root entity's place and size by `s`, and the lights' ranges and shadow near planes and the
+/// scene camera's planes with it: the same scene in other units.
+pub(crate) fn scale_world(world: &mut World, s: f32) {
+    let mut roots = world.query_filtered::<&mut Transform, Without<ChildOf>>();
+    for mut transform in roots.iter_mut(world) {
+        transform.translation *= s;
+        transform.scale *= s;
+    }
+    // The camera keeps its size (its scale would scale its view): only its place moves.
+    let mut cameras = world.query_filtered::<(&mut Transform, &mut Projection), With<crate::scenes::SceneCamera>>();
+    for (mut transform, mut projection) in cameras.iter_mut(world) {
+        transform.scale = Vec3::ONE;
+        if let Projection::Perspective(p) = &mut *projection {
+            p.near *= s;
+            p.far *= s;
+        }
+    }
+    for mut spot in world.query::<&mut SpotLight>().iter_mut(world) {
+        spot.range *= s;
+        spot.radius *= s;
+        spot.shadow_map_near_z *= s;
+    }
+    for mut point in world.query::<&mut PointLight>().iter_mut(world) {
+        point.range *= s;
+        point.radius *= s;
+        point.shadow_map_near_z *= s;
+    }
+    // Lights keep a unit scale too (their scale scales nothing but their children).
+    let mut lights = world.query_filtered::<&mut Transform, Or<(With<SpotLight>, With<PointLight>, With<DirectionalLight>)>>();
+    for mut transform in lights.iter_mut(world) {
+        transform.scale = Vec3::ONE;
+    }
+}
+
 #[expect(clippy::too_many_arguments, reason = "the driver reads every part of the world it reports on")]
 fn drive(
     mut commands: Commands,
@@ -420,8 +480,14 @@ fn drive(
     radiosity: Res<crate::radiosity::RadiosityActivity>,
     photon_grid: Res<crate::photon_grid::PhotonGridActivity>,
     vpls: Res<crate::vpl::VplSet>,
-    (device, warnings): (Option<Res<bevy::render::renderer::RenderDevice>>, Option<Res<crate::DiffuseGiWarnings>>),
+    (device, warnings, rh_volumes): (
+        Option<Res<bevy::render::renderer::RenderDevice>>,
+        Option<Res<crate::DiffuseGiWarnings>>,
+        Query<(&GlobalTransform, Option<&crate::radiance_hints::extract::RhMeanChord>), With<RadianceHintsVolume>>,
+    ),
 ) {
+    // The volume as it runs now (a scene scaled after it spawned moved and resized it).
+    let rh_live = rh_volumes.iter().next().map(|(t, c)| (t.compute_transform(), c.and_then(|c| c.metres)));
     let finish = |headless: &mut Headless, exit: &mut MessageWriter<AppExit>, error: Option<String>| {
         let failed = error.is_some();
         headless.outcome.lock().expect("outcome lock").error = error;
@@ -432,7 +498,7 @@ fn drive(
     let is_reference = headless.options.method == HeadlessMethod::Reference;
     match headless.phase {
         Phase::WaitingForScene => match &*status {
-            SceneStatus::Ready if !cameras.is_empty() => {
+            SceneStatus::Ready if !cameras.is_empty() && scale_propagated(&headless) => {
                 headless.phase = if is_reference { Phase::Rendering } else { Phase::Settling };
                 headless.phase_frames = 0;
                 headless.render_start = Some(Instant::now());
@@ -498,7 +564,7 @@ fn drive(
                 let result = trace_reference(&headless.options, snapshot.as_deref(), transform, projection, &exposure);
                 let error = match result {
                     Ok((image, extras, settings)) => {
-                        let mut map = sidecar(&headless, &exposure, &lights, &diagnostics, adapter.as_deref(), dynamic.as_deref());
+                        let mut map = sidecar(&headless, &exposure, &lights, &diagnostics, adapter.as_deref(), dynamic.as_deref(), rh_live);
                         map.insert("reference".into(), settings);
                         let mut outcome = headless.outcome.lock().expect("outcome lock");
                         outcome.image = Some(image);
@@ -545,7 +611,7 @@ fn drive(
             }
             let frames = headless.phase_frames;
             let seconds = headless.render_start.map_or(0.0, |s| s.elapsed().as_secs_f64());
-            let mut map = sidecar(&headless, &exposure, &lights, &diagnostics, adapter.as_deref(), dynamic.as_deref());
+            let mut map = sidecar(&headless, &exposure, &lights, &diagnostics, adapter.as_deref(), dynamic.as_deref(), rh_live);
             map.insert(
                 "wall_seconds".into(),
                 json!({ "frames_after_settling": frames, "render_including_settling": seconds,
@@ -717,6 +783,7 @@ fn sidecar(
     diagnostics: &DiagnosticsStore,
     adapter: Option<&RenderAdapterInfo>,
     dynamic: Option<&crate::scenes::DynamicScene>,
+    rh_live: Option<(Transform, Option<f32>)>,
 ) -> serde_json::Map<String, Value> {
     let o = &headless.options;
     let lights: Vec<Value> = lights
@@ -758,8 +825,10 @@ fn sidecar(
     if let Some(scene) = dynamic {
         map.insert("dynamic_pose_frame".into(), json!(scene.frame));
     }
-    if let Some((rh, transform)) = &headless.spawned_rh {
-        let rh = rh.effective(transform.to_matrix());
+    if let Some((rh, spawned)) = &headless.spawned_rh {
+        let (transform, mean_chord) = rh_live.unwrap_or((*spawned, None));
+        let transform = &transform;
+        let rh = rh.effective(transform.to_matrix(), mean_chord);
         map.insert(
             "radiance_hints".into(),
             json!({
@@ -775,6 +844,7 @@ fn sidecar(
                 "secondary": format!("{:?}", rh.secondary), "voxel_visibility": rh.voxel_visibility,
                 "refinement_updates": rh.refinement_updates,
                 "volume_center": transform.translation.to_array(), "volume_size": transform.scale.to_array(),
+                "mean_chord": mean_chord,
             }),
         );
     }

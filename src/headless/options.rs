@@ -140,6 +140,11 @@ pub struct HeadlessOptions {
     pub stop_animation_at: Option<f32>,
     /// `dynamic` scene: static triangles added along the back wall.
     pub extra_triangles: u32,
+    /// Scales the whole scene (every root entity's place and size, the lights' ranges and the camera's
+    /// planes) by this factor once it has loaded: the same scene in other units. An emissive-lit scene's
+    /// image does not change with it; a scene lit by lights of fixed intensity gets `1/scale²` of the
+    /// light. 1 leaves the scene as it is.
+    pub scene_scale: f32,
     /// After the `frames`, go on rendering until the CPU methods' background work (radiosity's solve,
     /// the photon grid's preparation) has caught up with the scene and been blended in, for at most
     /// this many seconds from the start of rendering, and read back then: the converged image after a
@@ -185,6 +190,7 @@ impl Default for HeadlessOptions {
             pose_frame: 0.0,
             stop_animation_at: None,
             extra_triangles: 0,
+            scene_scale: 1.0,
             wait_background: None,
             switch_method: None,
         }
@@ -271,6 +277,10 @@ pub struct HeadlessArgs {
     /// dynamic scene: add about N static triangles (spheres along the back wall), 0..=5000000
     #[arg(long, value_name = "N", default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=5_000_000))]
     pub extra_triangles: u32,
+    /// Scale the whole scene by S once it has loaded (the same scene in other units: lights keep their
+    /// intensity, emission its radiance), 1e-4..=1e6
+    #[arg(long, value_name = "S", default_value_t = 1.0, value_parser = parse_scene_scale)]
+    pub scene_scale: f32,
     /// After the --frames, go on rendering until the CPU methods (radiosity, photon grid) have finished
     /// their background work on the scene as it is, then read back; at most SECONDS from the start of
     /// rendering, 1..=3600
@@ -573,6 +583,10 @@ fn parse_ev100(text: &str) -> Result<f32, String> {
     text.parse::<f32>().ok().filter(|v| (-64.0..=64.0).contains(v)).ok_or_else(|| format!("`{text}` is not a number in -64..=64"))
 }
 
+fn parse_scene_scale(text: &str) -> Result<f32, String> {
+    text.parse::<f32>().ok().filter(|v| (1e-4..=1e6).contains(v)).ok_or_else(|| format!("`{text}` is not a number in 1e-4..=1e6"))
+}
+
 fn parse_pose(text: &str) -> Result<f32, String> {
     text.parse::<f32>().ok().filter(|v| (0.0..=1.0e6).contains(v)).ok_or_else(|| format!("`{text}` is not a number in 0..=1000000"))
 }
@@ -631,6 +645,7 @@ impl HeadlessArgs {
             pose_frame: self.pose_frame,
             stop_animation_at: self.stop_animation_at,
             extra_triangles: self.extra_triangles,
+            scene_scale: self.scene_scale,
             wait_background: self.wait_background,
             switch_method: self.switch_method,
             ..HeadlessOptions::default()
@@ -864,6 +879,9 @@ mod tests {
         assert_eq!(o.out, PathBuf::from("a/b.exr"));
         assert_eq!(o.ev100, Some(1.5));
         assert_eq!(parse("--ev100 -2").unwrap().ev100, Some(-2.0));
+        assert_eq!(parse("--scene-scale 250").unwrap().scene_scale, 250.0);
+        assert_eq!(parse("").unwrap().scene_scale, 1.0);
+        assert!(parse("--scene-scale 0").unwrap_err().contains("--scene-scale"));
     }
 
     #[test]

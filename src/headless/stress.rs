@@ -161,14 +161,14 @@ pub fn stress_cases() -> Vec<StressCase> {
             description: "everything scaled by 10⁻² (a 2 cm box): the same light 100 times closer, 10⁴ times the bounced light",
             expected_warnings: 0,
             light: LightCheck::Scaled(1e4),
-            apply: |world| scale_world(world, 1e-2),
+            apply: |world| super::scale_world(world, 1e-2),
         },
         StressCase {
             name: "huge_scene",
             description: "everything scaled by 10³ (a 2 km box): 10⁻⁶ times the bounced light",
             expected_warnings: 0,
             light: LightCheck::Scaled(1e-6),
-            apply: |world| scale_world(world, 1e3),
+            apply: |world| super::scale_world(world, 1e3),
         },
         StressCase {
             name: "empty_scene",
@@ -367,39 +367,6 @@ fn move_camera(world: &mut World, position: Vec3, fov_degrees: f32, far: f32) {
             p.fov = fov_degrees.to_radians();
             p.far = far;
         }
-    }
-}
-
-/// Scales every root entity's place and size by `s`, and the lights' ranges and the camera's planes with it.
-fn scale_world(world: &mut World, s: f32) {
-    let mut roots = world.query_filtered::<&mut Transform, Without<ChildOf>>();
-    for mut transform in roots.iter_mut(world) {
-        transform.translation *= s;
-        transform.scale *= s;
-    }
-    // The camera keeps its size (its scale would scale its view): only its place moves.
-    let mut cameras = world.query_filtered::<(&mut Transform, &mut Projection), With<SceneCamera>>();
-    for (mut transform, mut projection) in cameras.iter_mut(world) {
-        transform.scale = Vec3::ONE;
-        if let Projection::Perspective(p) = &mut *projection {
-            p.near *= s;
-            p.far *= s;
-        }
-    }
-    for mut spot in world.query::<&mut SpotLight>().iter_mut(world) {
-        spot.range *= s;
-        spot.radius *= s;
-        spot.shadow_map_near_z *= s;
-    }
-    for mut point in world.query::<&mut PointLight>().iter_mut(world) {
-        point.range *= s;
-        point.radius *= s;
-        point.shadow_map_near_z *= s;
-    }
-    // Lights keep a unit scale too (their scale scales nothing but their children).
-    let mut lights = world.query_filtered::<&mut Transform, Or<(With<SpotLight>, With<PointLight>, With<DirectionalLight>)>>();
-    for mut transform in lights.iter_mut(world) {
-        transform.scale = Vec3::ONE;
     }
 }
 

@@ -1114,6 +1114,37 @@ mod tests {
     }
 
     #[test]
+    fn an_emissive_panel_sends_its_closed_form_flux_to_the_floor() {
+        // A black 1 × 0.6 m panel of radiance Le, 0.8 m over a 4 m floor of albedo 0.5: the emitters are
+        // two-sided (2 π Le A leaves), and the floor reflects ρ ∫ E dA, E the closed form
+        // (`crate::emitters::parallel_rectangle_irradiance`), integrated here by the midpoint rule.
+        let le = Vec3::new(30.0, 20.0, 10.0);
+        let glow = SnapshotMaterial { emissive: le, diffuse: Vec3::ZERO, ..SnapshotMaterial::DEFAULT_GREY };
+        let y = 0.8;
+        let mut triangles = quad([Vec3::new(-0.5, y, -0.3), Vec3::new(0.5, y, -0.3), Vec3::new(0.5, y, 0.3), Vec3::new(-0.5, y, 0.3)], 1).to_vec();
+        triangles.extend(quad([Vec3::new(-2.0, 0.0, -2.0), Vec3::new(-2.0, 0.0, 2.0), Vec3::new(2.0, 0.0, 2.0), Vec3::new(2.0, 0.0, -2.0)], 0));
+        let snapshot = SceneSnapshot::build(triangles, vec![grey(0.5), glow], vec![], vec![]);
+        let (layout, photons, stats) = trace(&snapshot, 200_000, 1, 8);
+        let area = 0.6;
+        assert!(relative(stats.emitted, 2.0 * PI * le * area) < 1e-3, "{stats:?}");
+        let floor_cell = layout.cell_of(Vec3::new(0.0, 0.0, 0.0)).unwrap().y;
+        assert_ne!(floor_cell, layout.cell_of(Vec3::new(0.0, y, 0.0)).unwrap().y, "the floor and the panel share cells");
+        let reflected: Vec3 = photons.iter().filter(|p| layout.coords(p.cell as usize).y == floor_cell).map(|p| p.power).sum();
+        let n = 200;
+        let step = 4.0 / n as f32;
+        let mut irradiance_integral = Vec3::ZERO;
+        for i in 0..n {
+            for j in 0..n {
+                let (x, z) = (-2.0 + (i as f32 + 0.5) * step, -2.0 + (j as f32 + 0.5) * step);
+                let e = crate::emitters::parallel_rectangle_irradiance(1.0, y, [-0.5 - x, 0.5 - x], [-0.3 - z, 0.3 - z]);
+                irradiance_integral += le * e * step * step;
+            }
+        }
+        let want = 0.5 * irradiance_integral;
+        assert!(relative(reflected, want) < 0.03, "{reflected} lm reflected by the floor against {want}");
+    }
+
+    #[test]
     fn r_grid_face_weights_sum_to_one() {
         for i in 0..500 {
             let d = fibonacci_sphere(i, 500);

@@ -29,6 +29,45 @@ pub struct RhGeometryVoxels {
     pub data: Arc<GeometryVoxels>,
 }
 
+/// How far apart the surfaces in a [`RadianceHintsVolume`] are: their mean chord
+/// ([`SceneSnapshot::mean_chord`], [`MEAN_CHORD_RAYS`] rays), which keeps the adaptive grid's cells in
+/// proportion to the scene whatever its units ([`GridSizing`](super::GridSizing)). Measured with the
+/// voxels, once per layout of the snapshot and placement of the volume; a new value within 20 % of the
+/// last is not taken (a volume that moves does not re-size its grid for noise).
+#[derive(Component, Clone, Copy, Debug, PartialEq)]
+pub struct RhMeanChord {
+    /// Metres; `None` when no surface overlaps the volume (or every ray left the scene).
+    pub metres: Option<f32>,
+    /// The snapshot's layout generation and the volume's transform it was measured for.
+    key: (u64, [u32; 16]),
+}
+
+/// Rays [`RhMeanChord`] traces: about 1 ms on the main thread (per layout change), and within 3 % of
+/// the value of 16× as many on the standard scenes.
+pub const MEAN_CHORD_RAYS: u32 = 2048;
+
+impl RhMeanChord {
+    /// The chord of a volume with `world_from_local` in `snapshot`, reusing `last` where it still holds.
+    fn measure(last: Option<&RhMeanChord>, snapshot: &SceneSnapshot, world_from_local: Mat4) -> RhMeanChord {
+        let key = (snapshot.layout_generation, world_from_local.to_cols_array().map(f32::to_bits));
+        if let Some(last) = last.filter(|l| l.key == key) {
+            return *last;
+        }
+        let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+        for i in 0..8 {
+            let corner = Vec3::new((i & 1) as f32, ((i >> 1) & 1) as f32, ((i >> 2) & 1) as f32) - 0.5;
+            let p = world_from_local.transform_point3(corner);
+            (lo, hi) = (lo.min(p), hi.max(p));
+        }
+        let metres = snapshot.mean_chord(lo, hi, MEAN_CHORD_RAYS);
+        let metres = match (last.and_then(|l| l.metres), metres) {
+            (Some(old), Some(new)) if (new / old - 1.0).abs() < 0.2 => Some(old),
+            (_, new) => new,
+        };
+        RhMeanChord { metres, key }
+    }
+}
+
 /// The Bevy [`IrradianceVolume`] image a volume writes when a camera asks for
 /// [`GiOutput::IrradianceVolume`]; the probe is a child entity carrying this same handle.
 #[derive(Component, Clone, Debug)]
@@ -104,7 +143,7 @@ pub(crate) fn ensure_snapshot(
 pub(crate) fn update_geometry_voxels(
     mut commands: Commands,
     snapshot: Option<Res<SceneSnapshot>>,
-    volumes: Query<(Entity, &RadianceHintsVolume, &GlobalTransform, Option<&RhGeometryVoxels>)>,
+    volumes: Query<(Entity, &RadianceHintsVolume, &GlobalTransform, Option<&RhGeometryVoxels>, Option<&RhMeanChord>)>,
     mut cost: ResMut<crate::MainThreadCost>,
 ) {
     let start = std::time::Instant::now();
@@ -112,9 +151,15 @@ pub(crate) fn update_geometry_voxels(
         return;
     };
     let mut worked = false;
-    for (entity, volume, transform, voxels) in &volumes {
+    for (entity, volume, transform, voxels, last_chord) in &volumes {
         let matrix = volume_matrix(transform);
-        let settings = volume.effective(matrix);
+        // Only an adaptive grid follows the scene's chord.
+        let chord = matches!(volume.sizing, super::GridSizing::Adaptive { .. })
+            .then(|| RhMeanChord::measure(last_chord, &snapshot, matrix));
+        if chord.is_some() && chord.as_ref() != last_chord {
+            commands.entity(entity).insert(chord.unwrap());
+        }
+        let settings = volume.effective(matrix, chord.and_then(|c| c.metres));
         let key = (
             snapshot.geometry_generation,
             matrix.to_cols_array().map(f32::to_bits),
@@ -153,7 +198,7 @@ pub(crate) fn update_geometry_voxels(
 pub(crate) fn manage_irradiance_exports(
     mut commands: Commands,
     cameras: Query<(&Camera, &DiffuseGi)>,
-    volumes: Query<(Entity, &RadianceHintsVolume, &GlobalTransform, Option<&RhIrradianceExport>)>,
+    volumes: Query<(Entity, &RadianceHintsVolume, &GlobalTransform, Option<&RhIrradianceExport>, Option<&RhMeanChord>)>,
     images: Option<ResMut<Assets<Image>>>,
 ) {
     let Some(mut images) = images else {
@@ -162,8 +207,8 @@ pub(crate) fn manage_irradiance_exports(
     let wanted = cameras.iter().any(|(camera, gi)| {
         camera.is_active && gi.enabled && gi.method == GiMethod::RadianceHints && gi.output == GiOutput::IrradianceVolume
     });
-    for (entity, volume, transform, export) in &volumes {
-        let resolution = volume.effective(volume_matrix(transform)).resolution;
+    for (entity, volume, transform, export, chord) in &volumes {
+        let resolution = volume.effective(volume_matrix(transform), chord.and_then(|c| c.metres)).resolution;
         match (wanted, export) {
             (true, Some(e)) if e.resolution == resolution => {}
             (true, existing) => {
@@ -231,6 +276,7 @@ type VolumeQuery<'a> = (
     Option<&'a InheritedVisibility>,
     Option<&'a RhGeometryVoxels>,
     Option<&'a RhIrradianceExport>,
+    Option<&'a RhMeanChord>,
 );
 
 /// Extracts the volumes, but only while an active camera uses Radiance Hints (for its composite or its
@@ -253,12 +299,12 @@ pub(crate) fn extract_volumes(
         return;
     }
     let mut bounds: Option<(Vec3, Vec3)> = None;
-    for (entity, volume, transform, visibility, voxels, export) in &volumes {
+    for (entity, volume, transform, visibility, voxels, export, chord) in &volumes {
         if visibility.is_some_and(|v| !v.get()) {
             continue;
         }
         let world_from_local = volume_matrix(transform);
-        let settings = volume.effective(world_from_local);
+        let settings = volume.effective(world_from_local, chord.and_then(|c| c.metres));
         for i in 0..8 {
             let corner = Vec3::new(
                 if i & 1 == 0 { -0.5 } else { 0.5 },

@@ -158,6 +158,11 @@
 //!   sample: 16 bytes each for walls, 32 for other normals (the vertical terms, 22 → 29 ms).
 //! * **Memory**: see [`RadianceHintsVolume`] (16³ hints: 1.7 MiB; the 121 000 hints of a 60 m field
 //!   45 MiB).
+//! * **Units**: the adaptive grid follows the mean distance between the scene's surfaces as well as
+//!   metres ([`GridSizing`]), so a scene modelled in other units costs what it costs at game scale:
+//!   `emissive_panel` at 250× (a 501 m box, like Bevy's `CornellBox.glb`) gets 16³ hints and the frame
+//!   time of the 2 m box (it got 51³ hints and a frame 38× slower), with the same light
+//!   (`docs/radiance_hints.md`, § the same scene in other units).
 //!
 //! # Known issues
 //! * **A room lit only through a door gets too little** (issue #32; `docs/unseen_rooms.md`): room_136's

@@ -179,6 +179,16 @@ pub struct RadianceHintsVolume {
 ///   `max_cell` metres, and the grid grows (cost grows with it) up to `max_hints`, beyond which cells
 ///   grow again. Very large worlds want several volumes (they blend where they overlap).
 ///
+/// `max_cell` is a length in metres, right for rooms at game scale, but a scene is not always modelled in
+/// metres: Bevy's own `CornellBox.glb` is a 557 m box, and `max_cell` gave it 51 × 50 × 51 hints (55 MB,
+/// 20 s of bounces per frame on lavapipe) where the same box at 2 m gets 16³. So the cap is also at least
+/// [`GridSizing::MEAN_CHORD_CELL`] times the volume's mean chord, the mean distance between its surfaces
+/// ([`SceneSnapshot::mean_chord`](crate::scene::SceneSnapshot::mean_chord), measured once per layout of
+/// the scene): a length of the scene's own, so a scene's hints do not depend on its units. Every room of
+/// the standard scenes and the generated family has a mean chord under 1.6 m, where the metres rule is
+/// the tighter one and nothing changes; a wide open hall or a scene in other units gets the hints its
+/// geometry needs.
+///
 /// Every axis gets at least 2 hints. `docs/radiance_hints.md` (§ game scale) measures the rule on
 /// `cornell`, `cellar`, `sponza_like` and `open_field`.
 #[derive(Reflect, Clone, Copy, Debug, PartialEq)]
@@ -211,14 +221,21 @@ impl GridSizing {
         max_hints: 131072,
     };
 
-    /// The hints per axis for a box of `size` metres.
-    pub fn resolution_for(&self, fixed: UVec3, size: Vec3) -> UVec3 {
+    /// The largest cell, as a fraction of the volume's mean chord, that the adaptive rule keeps cells
+    /// under whatever `max_cell` says: about five cells across the mean distance between surfaces (see the
+    /// type's docs).
+    pub const MEAN_CHORD_CELL: f32 = 0.2;
+
+    /// The hints per axis for a box of `size` metres whose surfaces are `mean_chord` metres apart on
+    /// average (`None`: unknown, the `max_cell` rule alone).
+    pub fn resolution_for(&self, fixed: UVec3, size: Vec3, mean_chord: Option<f32>) -> UVec3 {
         let GridSizing::Adaptive { hints, max_cell, max_hints } = *self else {
             return fixed;
         };
         let size = if size.is_finite() { size.max(Vec3::splat(1e-3)) } else { Vec3::ONE };
         let volume = size.x * size.y * size.z;
-        let mut cell = (volume / hints.max(1) as f32).cbrt().min(max_cell.max(1e-3));
+        let chord_cell = mean_chord.filter(|c| c.is_finite() && *c > 0.0).map_or(0.0, |c| c * Self::MEAN_CHORD_CELL);
+        let mut cell = (volume / hints.max(1) as f32).cbrt().min(max_cell.max(chord_cell).max(1e-3));
         let counts = |cell: f32| (size / cell).round().max(Vec3::splat(2.0)).min(Vec3::splat(128.0));
         // Grow the cells until the grid fits the budget (the rounding may overshoot by a little).
         while counts(cell).x * counts(cell).y * counts(cell).z > max_hints.max(8) as f32 {
@@ -358,11 +375,12 @@ impl RadianceHintsVolume {
     pub const MAX_HINTS: u32 = 1 << 18;
 
 
-    /// The settings the plugin runs for a box of `size` metres: [`sizing`](Self::sizing) applied, so that
+    /// The settings the plugin runs for a box of `size` metres whose surfaces are `mean_chord` metres apart
+    /// ([`RhMeanChord`](super::extract::RhMeanChord)): [`sizing`](Self::sizing) applied, so that
     /// [`resolution`](Self::resolution) holds the hints in use and the sizing is [`GridSizing::Fixed`].
-    pub fn resolved(&self, size: Vec3) -> Self {
+    pub fn resolved(&self, size: Vec3, mean_chord: Option<f32>) -> Self {
         let mut s = self.clone();
-        s.resolution = self.sizing.resolution_for(self.resolution, size);
+        s.resolution = self.sizing.resolution_for(self.resolution, size, mean_chord);
         while s.hint_count() > Self::MAX_HINTS {
             s.resolution = (s.resolution.as_vec3() * 0.9).as_uvec3().max(UVec3::splat(2));
         }
@@ -370,9 +388,11 @@ impl RadianceHintsVolume {
         s
     }
 
-    /// The sanitized settings a volume with `world_from_local` (its unit cube to world) runs.
-    pub fn effective(&self, world_from_local: Mat4) -> Self {
-        self.sanitized().0.resolved(box_size(world_from_local))
+    /// The sanitized settings a volume with `world_from_local` (its unit cube to world) runs, in a scene
+    /// whose surfaces in the volume are `mean_chord` metres apart (the volume's
+    /// [`RhMeanChord`](super::extract::RhMeanChord); `None` before it is measured).
+    pub fn effective(&self, world_from_local: Mat4, mean_chord: Option<f32>) -> Self {
+        self.sanitized().0.resolved(box_size(world_from_local), mean_chord)
     }
 
     /// The same settings with a fixed resolution adapted to a box of `size` metres so that cells are about
@@ -552,26 +572,55 @@ mod tests {
             panic!("the default is adaptive");
         };
         // A 2 m room gets the small-volume budget in cubic cells.
-        let small = medium.resolved(Vec3::splat(2.02));
+        let small = medium.resolved(Vec3::splat(2.02), None);
         assert_eq!(small.sizing, GridSizing::Fixed);
         assert!((small.hint_count() as f32 / hints as f32 - 1.0).abs() < 0.1, "{}", small.resolution);
         // A long flat box keeps its proportions.
-        let flat = medium.resolved(Vec3::new(8.0, 2.0, 4.0)).resolution;
+        let flat = medium.resolved(Vec3::new(8.0, 2.0, 4.0), None).resolution;
         assert_eq!((flat.x / flat.y, flat.x / flat.z), (4, 2), "{flat}");
         // A large room: cells no larger than max_cell, more hints than the small budget.
-        let hall = medium.resolved(Vec3::new(12.6, 6.6, 8.6));
+        let hall = medium.resolved(Vec3::new(12.6, 6.6, 8.6), None);
         let cell = Vec3::new(12.6, 6.6, 8.6) / hall.resolution.as_vec3();
         assert!(cell.max_element() <= max_cell * 1.1, "{cell}");
         assert!(hall.hint_count() > hints);
         // A huge world: the budget wins, cells grow.
-        let field = medium.resolved(Vec3::new(60.0, 9.0, 60.0));
+        let field = medium.resolved(Vec3::new(60.0, 9.0, 60.0), None);
         assert!(field.hint_count() <= max_hints, "{}", field.hint_count());
         assert!(field.hint_count() as f32 > 0.8 * max_hints as f32);
         // Fixed sizing is left alone.
         let fixed = RadianceHintsVolume { sizing: GridSizing::Fixed, ..medium.clone() };
-        assert_eq!(fixed.resolved(Vec3::splat(100.0)).resolution, UVec3::splat(16));
+        assert_eq!(fixed.resolved(Vec3::splat(100.0), None).resolution, UVec3::splat(16));
         // Degenerate boxes still get at least 2 hints per axis.
-        assert!(medium.resolved(Vec3::new(f32::NAN, 0.0, 1.0)).resolution.min_element() >= 2);
+        assert!(medium.resolved(Vec3::new(f32::NAN, 0.0, 1.0), None).resolution.min_element() >= 2);
+    }
+
+    #[test]
+    fn the_adaptive_grid_of_a_scene_does_not_depend_on_its_units() {
+        use crate::scene::{SceneSnapshot, SnapshotMaterial, mesh_triangles};
+        use bevy::math::primitives::Cuboid;
+        use bevy::prelude::{GlobalTransform, Mesh, Transform};
+        // A closed 2 m box with a block in it, and the same 278.5 times larger (Bevy's CornellBox.glb is a
+        // 557 m box): its surfaces are 278.5 times further apart, and it gets the same hints.
+        let scene = |s: f32| {
+            let mut t = mesh_triangles(&Mesh::from(Cuboid::new(2.0, 2.0, 2.0)), &GlobalTransform::from_scale(Vec3::splat(s)), 0).unwrap();
+            let block = Transform::from_xyz(0.3 * s, -0.4 * s, 0.2 * s).with_scale(Vec3::splat(s));
+            t.extend(mesh_triangles(&Mesh::from(Cuboid::new(0.6, 1.2, 0.6)), &GlobalTransform::from(block), 0).unwrap());
+            SceneSnapshot::build(t, vec![SnapshotMaterial::DEFAULT_GREY], vec![], vec![])
+        };
+        let chord = |s: f32| scene(s).mean_chord(Vec3::splat(-s), Vec3::splat(s), 2048).expect("surfaces");
+        let (small, large) = (chord(1.0), chord(278.5));
+        assert!((0.3..1.5).contains(&small), "{small} m between the surfaces of a 2 m box");
+        assert!((large / small / 278.5 - 1.0).abs() < 1e-3, "{large} m at 278.5× against {small} m");
+        let medium = RadianceHintsVolume::MEDIUM;
+        let at = |s: f32, c: Option<f32>| medium.resolved(Vec3::splat(2.0 * s), c).resolution;
+        assert_eq!(at(1.0, Some(small)), UVec3::splat(16));
+        assert_eq!(at(278.5, Some(large)), at(1.0, Some(small)));
+        // Without the chord, `max_cell` in metres alone: the 557 m box got the largest grid.
+        assert!(at(278.5, None).element_product() > 100_000, "{}", at(278.5, None));
+        // At game scale the metres rule is the tighter one: the chord changes nothing.
+        for size in [Vec3::new(12.6, 6.6, 8.6), Vec3::new(60.0, 9.0, 60.0), Vec3::new(20.0, 6.0, 12.0)] {
+            assert_eq!(medium.resolved(size, Some(1.6)).resolution, medium.resolved(size, None).resolution, "{size}");
+        }
     }
 
     #[test]

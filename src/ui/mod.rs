@@ -98,7 +98,7 @@ fn inspector_ui(
         Option<&mut RadiositySettings>,
         Option<&mut PhotonGridSettings>,
     )>,
-    mut volumes: Query<(Entity, Option<&Name>, &mut RadianceHintsVolume, &GlobalTransform)>,
+    mut volumes: Query<(Entity, Option<&Name>, &mut RadianceHintsVolume, &GlobalTransform, Option<&crate::radiance_hints::extract::RhMeanChord>)>,
     mut lights: Query<(Entity, Option<&Name>, &mut GiLight)>,
     diagnostics: Option<Res<DiagnosticsStore>>,
     warnings: Option<Res<crate::DiffuseGiWarnings>>,
@@ -219,10 +219,10 @@ fn inspector_ui(
             }
         });
         egui::CollapsingHeader::new("Radiance Hints volumes").default_open(true).show(ui, |ui| {
-            for (entity, name, mut volume, transform) in &mut volumes {
+            for (entity, name, mut volume, transform, chord) in &mut volumes {
                 let now = activity.as_ref().and_then(|a| a.get(entity));
                 ui.label(activity_line(now.as_ref()));
-                ui.push_id(entity, |ui| volume_ui(ui, &label(entity, name), &mut volume, transform));
+                ui.push_id(entity, |ui| volume_ui(ui, &label(entity, name), &mut volume, transform, chord.and_then(|c| c.metres)));
                 ui.separator();
             }
         });
@@ -477,7 +477,7 @@ fn background_line(busy: bool, frames_since_start: u32, done: u64) -> String {
     }
 }
 
-fn volume_ui(ui: &mut egui::Ui, label: &str, volume: &mut Mut<RadianceHintsVolume>, transform: &GlobalTransform) {
+fn volume_ui(ui: &mut egui::Ui, label: &str, volume: &mut Mut<RadianceHintsVolume>, transform: &GlobalTransform, mean_chord: Option<f32>) {
     ui.label(label);
     let mut v = (**volume).clone();
     ui.horizontal(|ui| {
@@ -543,7 +543,7 @@ fn volume_ui(ui: &mut egui::Ui, label: &str, volume: &mut Mut<RadianceHintsVolum
         ui.radio_value(&mut v.irradiance, IrradianceReconstruction::Linear, "linear (Eq. 7)");
     });
     ui.add(egui::Slider::new(&mut v.intensity, 0.0..=4.0).text("intensity"));
-    let running = v.effective(transform.to_matrix());
+    let running = v.effective(transform.to_matrix(), mean_chord);
     let r = running.resolution;
     ui.label(format!(
         "{}×{}×{} = {} hints, {:.2} MiB",
