@@ -156,8 +156,8 @@ pub(crate) fn update_geometry_voxels(
         // Only an adaptive grid follows the scene's chord.
         let chord = matches!(volume.sizing, super::GridSizing::Adaptive { .. })
             .then(|| RhMeanChord::measure(last_chord, &snapshot, matrix));
-        if chord.is_some() && chord.as_ref() != last_chord {
-            commands.entity(entity).insert(chord.unwrap());
+        if let Some(chord) = chord.filter(|c| Some(c) != last_chord) {
+            commands.entity(entity).insert(chord);
         }
         let settings = volume.effective(matrix, chord.and_then(|c| c.metres));
         let key = (

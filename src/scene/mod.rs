@@ -884,7 +884,7 @@ impl SceneSnapshot {
             total += triangle_area(t).max(0.0) as f64;
             cdf.push(total);
         }
-        if triangles.is_empty() || !(total > 0.0) || rays == 0 {
+        if triangles.is_empty() || total.is_nan() || total <= 0.0 || rays == 0 {
             return None;
         }
         let stream = crate::sampling::SobolStream::new(0xC0DE, 0x0C4D);

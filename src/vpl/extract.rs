@@ -135,8 +135,7 @@ pub(crate) fn update_vpls(
     mut walks: ResMut<VplWalks>,
     snapshot: Option<Res<SceneSnapshot>>,
     cameras: Query<(Entity, &Camera, &DiffuseGi, Option<&VplSettings>, &GlobalTransform)>,
-    gi_lights: Query<Entity, With<GiLight>>,
-    emitters: Option<Res<EmitterSamples>>,
+    (gi_lights, emitters): (Query<Entity, With<GiLight>>, Option<Res<EmitterSamples>>),
     mut cost: ResMut<crate::MainThreadCost>,
 ) {
     let start = std::time::Instant::now();
