@@ -1,7 +1,7 @@
 //! `cellar` (`shared/SCENES.md`): two rooms joined by a door, a flashlight in one, the camera in the
 //! other: the light reaches the camera's room only by bouncing through the door, and thin walls must stop it.
 //!
-//! `cargo run --release --example cellar`
+//! `cargo run --release --features tools --example cellar`
 //!
 //! Keys: G bounced light on/off, M or 1–6 the method (Radiance Hints, VPL, RSM gather, DRM, radiosity, photon grid), P the
 //! preset of every method, V the debug view, H half resolution, L the lights' motion, C orbit ↔ fly camera,

@@ -1,6 +1,6 @@
 //! Compares two linear EXRs with the metrics of `shared/METRICS.md` and writes a false-colour difference PNG.
 //!
-//! `cargo run --release --example compare -- METHOD.exr GROUND_TRUTH.exr [--diff OUT.png] [--scale S]`
+//! `cargo run --release --features tools --example compare -- METHOD.exr GROUND_TRUTH.exr [--diff OUT.png] [--scale S]`
 //!
 //! Prints the block relative RMSE (the headline number), the per-pixel relative RMSE, the energy ratio,
 //! the share of 4×4 blocks more than 50 % off and, with the `flip` feature, the mean FLIP error. The difference image maps `|a − r|` divided by the mean of

@@ -1,6 +1,6 @@
 //! The Cornell box (`shared/SCENES.md`): a 2 m box lit by one spot light, every method a key away.
 //!
-//! `cargo run --release --example cornell`
+//! `cargo run --release --features tools --example cornell`
 //!
 //! Keys: G bounced light on/off, M or 1–6 the method (Radiance Hints, VPL, RSM gather, DRM, radiosity, photon grid), P the
 //! preset of every method, V the debug view, H half resolution, L the lights' motion, C orbit ↔ fly camera,

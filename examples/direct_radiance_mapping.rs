@@ -1,7 +1,7 @@
 //! Direct Radiance Mapping (Frisvad et al. 2005) on the Cornell box, tuned live. `--scene near_light`
 //! hangs a block just below the light (the paper's Fig. 7).
 //!
-//! `cargo run --release --example direct_radiance_mapping [-- --scene NAME|PATH.glb]`
+//! `cargo run --release --features tools --example direct_radiance_mapping [-- --scene NAME|PATH.glb]`
 //!
 //! Keys: G bounced light on/off, M or 1–6 the method (Radiance Hints, VPL, RSM gather, DRM, radiosity, photon grid), P the
 //! preset of every method, V the debug view, H half resolution, L the lights' motion, C orbit ↔ fly camera,

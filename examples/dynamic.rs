@@ -1,7 +1,7 @@
 //! The `dynamic` scene: objects moving through a room and a light orbiting under its ceiling, with the
 //! bounced light following every frame.
 //!
-//! `cargo run --release --example dynamic`
+//! `cargo run --release --features tools --example dynamic`
 //!
 //! Keys: the common ones (G bounced light, M or 1–6 the method, P preset, V debug view, H half resolution,
 //! C orbit ↔ fly camera, F1 the panel), and: L the light's orbit, O how many objects move (0, 1, 10),

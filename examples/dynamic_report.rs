@@ -2,7 +2,7 @@
 //! `docs/dynamic.md`.
 //!
 //! ```text
-//! cargo run --release --example dynamic_report -- [--section NAME]... [--rounds N] [--docs docs/dynamic.md]
+//! cargo run --release --features tools --example dynamic_report -- [--section NAME]... [--rounds N] [--docs docs/dynamic.md]
 //! ```
 //! Sections: `motion` (all six methods while things move: frame time, hitches, main-thread cost, and
 //! how long the CPU methods' background work takes to catch up), `cost` (frame-time ratios to the frame without GI, at 256² and 512²), `triangles` (one moving

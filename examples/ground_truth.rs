@@ -1,7 +1,7 @@
 //! Renders the path-traced ground truth of a scene as the average of several independent seeds, and
 //! measures how converged it is.
 //!
-//! `cargo run --release --example ground_truth -- --scene cornell --spp 512 --seeds 8 --out assets/ground_truth/cornell.exr`
+//! `cargo run --release --features tools --example ground_truth -- --scene cornell --spp 512 --seeds 8 --out assets/ground_truth/cornell.exr`
 //!
 //! Accepts every flag of the `headless` example (`--size`, `--max-bounces`, `--ev100`, …) plus `--seeds N`
 //! (default 4); `--seed S` is the first seed. Writes `OUT` (the indirect-only image, what GI methods are
@@ -92,7 +92,7 @@ fn run() -> Result<(), String> {
     }
     let command: Vec<String> = std::env::args().skip(1).collect();
     let sidecar = json!({
-        "command": format!("cargo run --release --example ground_truth -- {}", command.join(" ")),
+        "command": format!("cargo run --release --features tools --example ground_truth -- {}", command.join(" ")),
         "scene": options.scene.name(),
         "size": [options.size.x, options.size.y],
         "spp_per_seed": options.spp,

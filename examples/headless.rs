@@ -1,6 +1,6 @@
 //! Renders a standard scene with no window and writes a linear float EXR plus a JSON sidecar.
 //!
-//! `cargo run --release --example headless -- --scene cornell --method reference --spp 256 --out out/c.exr`
+//! `cargo run --release --features tools --example headless -- --scene cornell --method reference --spp 256 --out out/c.exr`
 //! Run with `--help` for every flag, its unit and its default.
 
 use std::process::ExitCode;

@@ -3,7 +3,7 @@
 //! re-makes the banner's elements (only the banner's), rebuilds the links and relights: the light it
 //! bounces onto the walls and the shadow it casts in bounced light follow it.
 //!
-//! `cargo run --release --example implicit_visibility [-- --scene NAME|PATH.glb]`
+//! `cargo run --release --features tools --example implicit_visibility [-- --scene NAME|PATH.glb]`
 //!
 //! Keys: G bounced light on/off, M or 1–6 the method, P the preset of every method, V the debug view, H
 //! half resolution, L the lights' motion, B the banner's motion, C orbit ↔ fly camera, F1 the tuning panel

@@ -3,7 +3,7 @@
 //! `docs/one_bounce.md`.
 //!
 //! ```text
-//! cargo run --release --example one_bounce_report -- [--section NAME]... [--rounds N] [--docs docs/one_bounce.md]
+//! cargo run --release --features tools --example one_bounce_report -- [--section NAME]... [--rounds N] [--docs docs/one_bounce.md]
 //! ```
 //! Sections: `accuracy`, `near_light`, `flashing`, `timing`, `images` (default: all). Each prints a
 //! Markdown table; with `--docs FILE` the table also replaces the text between

@@ -2,7 +2,7 @@
 //! open world. One Radiance Hints volume over all of it has 1 m cells (see the known issues of
 //! `radiance_hints`).
 //!
-//! `cargo run --release --example open_field`
+//! `cargo run --release --features tools --example open_field`
 //!
 //! Keys: G bounced light on/off, M or 1–6 the method (Radiance Hints, VPL, RSM gather, DRM, radiosity, photon grid), P the
 //! preset of every method, V the debug view, H half resolution, L the lights' motion, C orbit ↔ fly camera,

@@ -4,7 +4,7 @@
 //! through a door) or `--scene cornell`, and the photon-grid presets (P) in the tuning panel: the grid's
 //! cells, photons, probe directions and the radiance filter.
 //!
-//! `cargo run --release --example photon_grid [-- --scene NAME|PATH.glb]`
+//! `cargo run --release --features tools --example photon_grid [-- --scene NAME|PATH.glb]`
 //!
 //! Keys: G bounced light on/off, M or 1–6 the method (Radiance Hints, VPL, RSM gather, DRM, radiosity, photon
 //! grid), P the preset of every method, V the debug view, H half resolution, L the lights' motion, C orbit ↔

@@ -2,7 +2,7 @@
 //! Radiance Hints: the numbers of `docs/photon_grid.md`.
 //!
 //! ```text
-//! cargo run --release --example photon_grid_report -- [--section NAME]... [--rounds N] [--docs docs/photon_grid.md]
+//! cargo run --release --features tools --example photon_grid_report -- [--section NAME]... [--rounds N] [--docs docs/photon_grid.md]
 //! ```
 //! Sections: `accuracy`, `stages`, `timing` (default: all). Each prints a Markdown table; with
 //! `--docs FILE` the table also replaces the text between `<!-- photon_grid_report:NAME -->` and

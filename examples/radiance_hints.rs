@@ -1,6 +1,6 @@
 //! Radiance Hints (Papaioannou 2011) on the Cornell box: bounced light that follows a moving light, tuned live.
 //!
-//! `cargo run --release --example radiance_hints [-- --scene NAME|PATH.glb]`
+//! `cargo run --release --features tools --example radiance_hints [-- --scene NAME|PATH.glb]`
 //!
 //! Keys: G bounced light on/off, M or 1–6 the method (Radiance Hints, VPL, RSM gather, DRM, radiosity, photon grid), P the
 //! preset of every method, V the debug view, H half resolution, L the lights' motion, C orbit ↔ fly camera,

@@ -2,7 +2,7 @@
 //! the numbers of `docs/radiosity.md`.
 //!
 //! ```text
-//! cargo run --release --example radiosity_report -- [--section NAME]... [--rounds N] [--docs docs/radiosity.md]
+//! cargo run --release --features tools --example radiosity_report -- [--section NAME]... [--rounds N] [--docs docs/radiosity.md]
 //! ```
 //! Sections: `accuracy`, `bounces`, `stages`, `scaling`, `leak`, `timing` (default: all). Each prints a
 //! Markdown table; with `--docs FILE` the table also replaces the text between

@@ -2,7 +2,7 @@
 //! images of `docs/radiance_hints.md`.
 //!
 //! ```text
-//! cargo run --release --example rh_report -- [--section NAME]... [--rounds N] [--docs docs/radiance_hints.md]
+//! cargo run --release --features tools --example rh_report -- [--section NAME]... [--rounds N] [--docs docs/radiance_hints.md]
 //! ```
 //! Sections: `presets`, `scale`, `reconstruction`, `bounces`, `ablation`, `cellar`, `tradeoff`, `timing`, `images` (default: all).
 //! Each prints a Markdown table; with `--docs FILE` the table also replaces the text between the markers

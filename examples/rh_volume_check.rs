@@ -4,8 +4,8 @@
 //! field, with several bases and sample layouts, against the committed ground truth.
 //!
 //! ```sh
-//! cargo run --release --example headless -- --scene cellar --method rh --frames 32 --dump-volume out/cellar.json
-//! cargo run --release --example rh_volume_check -- out/cellar.json --scene cellar [--images out/check]
+//! cargo run --release --features tools --example headless -- --scene cellar --method rh --frames 32 --dump-volume out/cellar.json
+//! cargo run --release --features tools --example rh_volume_check -- out/cellar.json --scene cellar [--images out/check]
 //! # also `--scene room_SEED`, a generated room (its truth in assets/ground_truth/rooms/)
 //! ```
 //! For every valid hint it traces the radiance arriving from `--directions` directions (origins jittered

@@ -2,7 +2,7 @@
 //! starts it, N shows the next slide at once). Each slide is a scene with a method; the methods of one
 //! scene follow each other, then the next scene comes.
 //!
-//! `cargo run --release --example showcase`
+//! `cargo run --release --features tools --example showcase`
 //!
 //! Keys: the common ones (G bounced light, M or 1–6 the method, P preset, V debug view, H half resolution,
 //! L the lights' motion, C orbit ↔ fly camera, F1 the panel), and N next slide, Space auto-advance.

@@ -1,7 +1,7 @@
 //! `sponza_like` (`shared/SCENES.md`): a 12 m atrium with columns and arches, lit only by the sun
 //! through a roof opening: most of what the camera sees is light that bounced twice or more.
 //!
-//! `cargo run --release --example sponza_like`
+//! `cargo run --release --features tools --example sponza_like`
 //!
 //! Keys: G bounced light on/off, M or 1–6 the method (Radiance Hints, VPL, RSM gather, DRM, radiosity, photon grid), P the
 //! preset of every method, V the debug view, H half resolution, L the lights' motion, C orbit ↔ fly camera,

@@ -1,6 +1,6 @@
 //! Writes a viewable PNG of a linear EXR: `scale · rgb`, Reinhard `x / (1 + x)`, then sRGB.
 //!
-//! `cargo run --release --example tonemap -- IN.exr OUT.png [--scale S]` (default scale 1).
+//! `cargo run --release --features tools --example tonemap -- IN.exr OUT.png [--scale S]` (default scale 1).
 
 use std::process::ExitCode;
 

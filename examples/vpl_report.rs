@@ -2,7 +2,7 @@
 //! times it: the numbers of `docs/vpl_ssbc.md`.
 //!
 //! ```text
-//! cargo run --release --example vpl_report -- [--section NAME]... [--rounds N] [--docs docs/vpl_ssbc.md]
+//! cargo run --release --features tools --example vpl_report -- [--section NAME]... [--rounds N] [--docs docs/vpl_ssbc.md]
 //! ```
 //! Sections: `accuracy`, `corners`, `timing` (default: all). Each prints a Markdown table;
 //! with `--docs FILE` the table also replaces the text between `<!-- vpl_report:NAME -->` and

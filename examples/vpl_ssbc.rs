@@ -1,6 +1,6 @@
 //! VPLs with imperfect shadow maps and screen-space bias compensation (Novák 2011) on the Cornell box.
 //!
-//! `cargo run --release --example vpl_ssbc [-- --scene NAME|PATH.glb]`
+//! `cargo run --release --features tools --example vpl_ssbc [-- --scene NAME|PATH.glb]`
 //!
 //! Keys: G bounced light on/off, M or 1–6 the method (Radiance Hints, VPL, RSM gather, DRM, radiosity, photon grid), P the
 //! preset of every method, V the debug view, H half resolution, L the lights' motion, C orbit ↔ fly camera,

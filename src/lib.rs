@@ -28,7 +28,8 @@
 //! (the photon grid and SH field), their shared inputs [`rsm`] (reflective shadow maps) and
 //! [`background`] (the CPU methods' work off the main thread), the settings helpers of [`settings`],
 //! [`camera`] and [`light`] (the user's components), [`ui`] (the egui panel, feature `egui`). The measuring instruments: [`scene`] (CPU snapshot of the world), [`reference`](mod@reference)
-//! (path-traced ground truth), [`metrics`] (errors), [`scenes`] (standard scenes), [`headless`].
+//! (path-traced ground truth), [`metrics`] (errors), [`scenes`] (standard scenes), and with the feature
+//! `tools`, `headless` (the headless renderer and its command line).
 
 pub mod background;
 pub mod camera;
@@ -36,6 +37,7 @@ pub mod composite;
 pub mod drm;
 pub mod emitters;
 pub mod hdr_image;
+#[cfg(feature = "tools")]
 pub mod headless;
 pub mod light;
 pub mod metrics;

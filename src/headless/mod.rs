@@ -1,7 +1,7 @@
 //! The headless renderer: renders a standard scene with no window on whatever Vulkan device exists
 //! (lavapipe in CI) and writes a linear float EXR plus a JSON sidecar.
 //!
-//! `cargo run --release --example headless -- --scene cornell --method reference --out out/c.exr`
+//! `cargo run --release --features tools --example headless -- --scene cornell --method reference --out out/c.exr`
 //!
 //! The EXR holds linear RGB *after* exposure and *before* tonemapping, and the pixel's geometry coverage in
 //! alpha (`shared/METRICS.md`). GPU methods render through a camera with `Hdr`, `Tonemapping::None` and no

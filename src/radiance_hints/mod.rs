@@ -203,6 +203,7 @@
 
 pub mod activity;
 pub mod cascade;
+#[cfg(feature = "tools")]
 pub mod dump;
 pub mod extract;
 pub mod prepare;
@@ -325,6 +326,7 @@ impl Plugin for RadianceHintsPlugin {
         );
         let mut shaders = shaders;
         shaders.libraries.extend([occupancy, packed]);
+        #[cfg(feature = "tools")]
         app.add_plugins(bevy::render::extract_resource::ExtractResourcePlugin::<dump::RhVolumeDump>::default());
         app.register_type::<RadianceHintsVolume>()
             .register_type::<RadianceHintsCascade>()
@@ -380,7 +382,6 @@ impl Plugin for RadianceHintsPlugin {
                         .in_set(RenderSystems::PrepareResources)
                         .after(crate::rsm::prepare_rsm),
                     prepare::prepare_rh_bind_groups.in_set(RenderSystems::PrepareBindGroups),
-                    dump::dump_volume.in_set(RenderSystems::Cleanup),
                     activity::map_bounce_counts.in_set(RenderSystems::Cleanup),
                 ),
             )
@@ -398,6 +399,8 @@ impl Plugin for RadianceHintsPlugin {
                     .in_set(GiViewSystems::Produce)
                     .after(crate::composite::clear_gi_target),
             );
+        #[cfg(feature = "tools")]
+        render_app.add_systems(Render, dump::dump_volume.in_set(RenderSystems::Cleanup));
     }
 }
 

@@ -447,6 +447,7 @@ impl GeneratedRoom {
     /// Pixels of a `width`×`height` image from the scene camera whose view ray passes through a door of
     /// the camera's room into another room: what the camera sees of the rest of the scene. Every other
     /// pixel sees the camera's own room (or the dark outside).
+    #[cfg(feature = "reference")]
     pub fn through_doors(&self, width: u32, height: u32) -> Vec<bool> {
         let camera = self.reference_camera();
         // The doors of the camera's room.
@@ -467,6 +468,7 @@ impl GeneratedRoom {
 
     /// The scene camera as the path tracer sees it (position, orientation, field of view, exposure), for
     /// tools and tests that trace the room without Bevy.
+    #[cfg(feature = "reference")]
     pub fn reference_camera(&self) -> crate::reference::ReferenceCamera {
         crate::reference::ReferenceCamera {
             position: self.camera_position,
@@ -478,6 +480,7 @@ impl GeneratedRoom {
 
     /// `Σ image / Σ truth` over the pixels that see the camera's own room (not [`Self::through_doors`])
     /// and geometry in both images: how much of its room's light a method gives the room the player is in.
+    #[cfg(feature = "reference")]
     pub fn camera_room_energy(&self, image: &crate::hdr_image::HdrImage, truth: &crate::hdr_image::HdrImage) -> f64 {
         let Ok(mask) = crate::metrics::mask(image, truth) else { return f64::NAN };
         let doors = self.through_doors(truth.width, truth.height);
