@@ -19,6 +19,10 @@ fn room() -> StandardScene {
     StandardScene::Gltf(asset("test_room.gltf"))
 }
 
+/// The least share of the glTF room's direct light its GI lights' bounce must add (the RSM gather,
+/// measured 0.332).
+const BOUNCED_SHARE: f64 = 0.25;
+
 #[test]
 fn gltf_lights_cast_shadows_and_bounce() {
     let report = render(&HeadlessOptions {
@@ -41,6 +45,20 @@ fn gltf_lights_cast_shadows_and_bounce() {
     check(test, covered > image.pixels.len() / 2, image, None, format!("only {covered} pixels see the room"));
     let floor = image.region_mean(60, 200, 120, 240).expect("floor in view");
     check(test, floor[0] > 0.5, image, None, format!("lit floor is dark: {floor:?}"));
+    // And their light bounces: the glTF's lights are GI lights, so a GI method adds indirect light (the
+    // RSM gather, the cheapest; its values against a traced truth of this room are checked in
+    // tests/gpu_one_bounce.rs). An image without bounced light fails.
+    let indirect = render(&HeadlessOptions {
+        scene: room(),
+        method: headless::HeadlessMethod::Gi(bevy_diffuse_gi::camera::GiMethod::RsmGather),
+        indirect_only: true,
+        frames: 3,
+        ..Default::default()
+    })
+    .image;
+    let total = |i: &bevy_diffuse_gi::hdr_image::HdrImage| i.pixels.iter().map(|p| (p[0] + p[1] + p[2]) as f64).sum::<f64>();
+    let share = total(&indirect) / total(image).max(1e-12);
+    check(test, share > BOUNCED_SHARE, &indirect, Some(image), format!("the glTF's lights bounce {share:.4} of their direct light"));
 }
 
 #[test]

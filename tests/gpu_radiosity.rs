@@ -131,6 +131,11 @@ fn an_intensity_change_scales_the_light_without_a_new_solve() {
     check(test, (ratio - 2.0).abs() < 0.02, &doubled.image, Some(&once.image), format!("light scaled by {ratio:.4}, not 2"));
 }
 
+/// Radiosity with clamped absurd settings: its energy against `cornell`'s truth, measured 2.22. The
+/// fewest bins and the largest elements over-light the box: a bin a cluster's silhouette only grazes
+/// counts as covered (a known issue of `crate::radiosity`), and with the 6 × 2 × 2 bins of the clamp that is most of them.
+const ABSURD_ENERGY: (f64, f64) = (1.9, 2.6);
+
 #[test]
 fn absurd_settings_are_clamped_and_stay_finite() {
     let test = "radiosity_absurd_settings";
@@ -140,13 +145,16 @@ fn absurd_settings_are_clamped_and_stay_finite() {
         stop_threshold: f32::NAN,
         subdivision_threshold: -1.0,
         element_size: f32::INFINITY,
-        intensity: -1.0,
+        intensity: f32::NAN,
         ..Default::default()
     };
     let image = radiosity(HeadlessOptions { radiosity: settings, frames: 3, ..Default::default() }).image;
     check(test, !image.has_non_finite(), &image, None, "NaN or Inf from clamped settings".into());
-    // Intensity −1 is clamped to 0: no light.
-    check(test, image.pixels.iter().all(|p| p[..3] == [0.0; 3]), &image, None, "intensity 0 still adds light".into());
+    // Clamped (the intensity falls back to 1), they still light `cornell` (the default gives 1.09 of the
+    // truth's energy; these settings the value below). An image without light fails.
+    let truth = ground_truth("cornell.exr");
+    let e = metrics::compare(&image, &truth).expect("same size").energy_ratio;
+    check(test, (ABSURD_ENERGY.0..ABSURD_ENERGY.1).contains(&e), &image, Some(&truth), format!("clamped settings: energy {e:.3}"));
 }
 
 #[test]

@@ -44,8 +44,18 @@ pub(crate) fn dump_volume(
     volumes: Res<RhVolumesGpu>,
     device: Res<RenderDevice>,
     queue: Res<RenderQueue>,
+    mut frames_without: Local<u32>,
 ) {
-    let (Some(dump), Some(v)) = (dump, volumes.volumes.first()) else {
+    let Some(dump) = dump else {
+        return;
+    };
+    let Some(v) = volumes.volumes.first() else {
+        // Say so once, rather than leave the file unwritten without a word (the first frames of a run
+        // have no volume yet).
+        *frames_without += 1;
+        if *frames_without == 60 {
+            warn!("bevy_diffuse_gi: RhVolumeDump asks for {}, but no Radiance Hints volume has been prepared in 60 frames", dump.path.display());
+        }
         return;
     };
     let floats = field_floats(v.settings.sh_order);
