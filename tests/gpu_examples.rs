@@ -115,6 +115,35 @@ fn panel_share(image: &image::RgbImage) -> f64 {
     fill as f64 / (image.width() * image.height()).max(1) as f64
 }
 
+/// The brightness (0–255, the whole 1280×720 screen) each method's bounced light added to its example's
+/// screenshot on lavapipe (2026-12-06); the test asks for at least half of it. `showcase`'s slides after
+/// the first show other scenes than its screenshot without bounced light, so only its first is compared.
+const MEASURED_GAIN: &[(&str, &str, f64)] = &[
+    ("cornell", "rh", 19.63),
+    ("cornell", "vpl", 19.70),
+    ("cornell", "rsm", 16.38),
+    ("cornell", "drm", 15.78),
+    ("cornell", "radiosity", 20.49),
+    ("cornell", "photon-grid", 19.42),
+    ("cellar", "vpl", 40.74),
+    ("cellar", "radiosity", 35.22),
+    ("sponza_like", "rh", 55.55),
+    ("sponza_like", "rsm", 35.32),
+    ("open_field", "drm", 4.30),
+    ("open_field", "vpl", 10.12),
+    ("dynamic", "rh", 9.84),
+    ("dynamic", "vpl", 9.93),
+    ("dynamic", "rsm", 5.83),
+    ("dynamic", "drm", 4.57),
+    ("radiance_hints", "rh", 17.10),
+    ("vpl_ssbc", "vpl", 18.82),
+    ("rsm_gather", "rsm", 16.21),
+    ("direct_radiance_mapping", "drm", 15.70),
+    ("implicit_visibility", "radiosity", 17.79),
+    ("photon_grid", "photon-grid", 35.02),
+    ("showcase", "cornell_rh", 12.12),
+];
+
 #[test]
 fn every_windowed_example_runs_with_its_panel_and_adds_bounced_light() {
     for (example, steps, same_scene) in EXAMPLES {
@@ -126,10 +155,16 @@ fn every_windowed_example_runs_with_its_panel_and_adds_bounced_light() {
             assert!(brightness > 10.0, "{example} {label}: the window is black ({brightness:.1})");
             let panel = panel_share(image);
             assert!(panel > 0.1, "{example} {label}: no tuning panel in its screenshot (egui fill on {:.1} % of it)", 100.0 * panel);
-            // Bounced light adds light: the screenshot with it is brighter than the one without.
+            // Bounced light adds light: the screenshot with it is brighter than the one without, by at
+            // least half of what was measured (a method that adds a trace of light fails).
             let gain = brightness - unlit;
-            if *same_scene {
-                assert!(gain > 0.5, "{example} {label}: the image with bounced light is not brighter than without ({gain:.2})");
+            let measured = MEASURED_GAIN.iter().find(|(e, l, _)| e == example && l == label).map(|m| m.2);
+            if *same_scene || measured.is_some() {
+                let measured = measured.unwrap_or_else(|| panic!("{example} {label}: no measured gain in MEASURED_GAIN"));
+                assert!(
+                    gain > 0.5 * measured,
+                    "{example} {label}: bounced light adds {gain:.2} to the screenshot's brightness, under half the {measured} measured"
+                );
             }
             eprintln!("{example} {label}: mean {brightness:.1}, {gain:+.2} from bounced light, panel {:.1} %", 100.0 * panel);
         }
