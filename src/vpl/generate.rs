@@ -617,6 +617,13 @@ mod tests {
         }
     }
 
+    /// The depth a traced shadow map of `vpl` (alone in `maps`) stores towards `p`, ∞ where nothing is.
+    fn stored_depth(maps: &[u32], vpl: &Vpl, side: u32, p: Vec3) -> f32 {
+        let uv = paraboloid_coords(vpl.normal, (p - vpl.position).normalize(), side);
+        let stored = maps[(uv.y as u32 * side + uv.x as u32) as usize];
+        if stored == 0 { f32::INFINITY } else { 1.0 / f32::from_bits(stored) }
+    }
+
     #[test]
     fn traced_shadow_maps_keep_the_first_surface_lit_and_shadow_what_lies_behind_a_thin_wall() {
         // A floor, and a 4 cm wall standing on it at x ∈ [1, 1.04].
@@ -627,11 +634,7 @@ mod tests {
         let vpl = Vpl { position: Vec3::new(0.0, 0.01, 0.0), normal: Vec3::Y, flux: Vec3::ONE, bounce: 1 };
         let side = 32;
         let maps = traced_shadow_maps(&snapshot, &[vpl], side);
-        let lookup = |p: Vec3| {
-            let uv = paraboloid_coords(vpl.normal, (p - vpl.position).normalize(), side);
-            let stored = maps[(uv.y as u32 * side + uv.x as u32) as usize];
-            if stored == 0 { f32::INFINITY } else { 1.0 / f32::from_bits(stored) }
-        };
+        let lookup = |p: Vec3| stored_depth(&maps, &vpl, side, p);
         // The wall's own face (1 m away) is in front of its stored far side; a point on the floor behind
         // the wall (3 m away) is behind it; so is the back face of the wall itself.
         let face = Vec3::new(1.0, 0.5, 0.3);
@@ -653,11 +656,7 @@ mod tests {
         let vpl = Vpl { position: Vec3::new(0.0, 1.5, 0.0), normal: Vec3::NEG_Y, flux: Vec3::ONE, bounce: 1 };
         let side = 32;
         let maps = traced_shadow_maps(&snapshot, &[vpl], side);
-        let lookup = |p: Vec3| {
-            let uv = paraboloid_coords(vpl.normal, (p - vpl.position).normalize(), side);
-            let stored = maps[(uv.y as u32 * side + uv.x as u32) as usize];
-            if stored == 0 { f32::INFINITY } else { 1.0 / f32::from_bits(stored) }
-        };
+        let lookup = |p: Vec3| stored_depth(&maps, &vpl, side, p);
         let distance = |p: Vec3| (p - vpl.position).length();
         for under in [Vec3::new(0.0, 0.0, 0.0), Vec3::new(0.2, 0.0, -0.3)] {
             assert!(distance(under) > lookup(under) + 0.5, "light goes through the sheet to {under}: stored {}", lookup(under));

@@ -70,6 +70,23 @@ impl Region {
             panic!("region {} sees no geometry; image saved in {}", self.name, dir.display())
         })
     }
+
+    /// Asserts that the region's colour in `image` is the truth's: its R/G and B/G ratios each within
+    /// `tolerance` (a fraction) of the truth's there.
+    #[track_caller]
+    pub fn same_colour(&self, test: &str, image: &HdrImage, truth: &HdrImage, tolerance: f32) {
+        let (a, r) = (self.mean(test, image), self.mean(test, truth));
+        for (c, name) in [(0, "R/G"), (2, "B/G")] {
+            let (ours, theirs) = (a[c] / a[1], r[c] / r[1]);
+            check(
+                test,
+                (ours / theirs - 1.0).abs() < tolerance,
+                image,
+                Some(truth),
+                format!("{}: {name} {ours:.3} against the truth's {theirs:.3}", self.name),
+            );
+        }
+    }
 }
 
 pub fn luminance(rgb: [f32; 3]) -> f32 {
