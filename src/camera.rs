@@ -110,9 +110,9 @@ pub enum GiMethod {
     /// the CPU; no reflective shadow map and no volume, and emissive meshes light the scene. Settings:
     /// [`RadiositySettings`](crate::radiosity::RadiositySettings) on the camera.
     Radiosity,
-    /// The photon grid and SH field (Chang, Park & Ihm): photons from every light, eight
-    /// reflections deep by default (the paper keeps four), accumulated on the faces of a grid, turned into spherical harmonics of the incoming light
-    /// near the surfaces and gathered per pixel; prepared on the CPU, no reflective shadow map and no
+    /// The photon grid and SH field (Chang, Park & Ihm): photons from every light, eight reflections
+    /// deep by default (the paper keeps four), accumulated on the faces of a grid, turned into spherical
+    /// harmonics of the incoming light near the surfaces and gathered per pixel; prepared on the CPU, no reflective shadow map and no
     /// volume; emissive meshes and the environment map light the scene. Settings:
     /// [`PhotonGridSettings`](crate::photon_grid::PhotonGridSettings) on the camera.
     PhotonGrid,

@@ -148,7 +148,7 @@ pub fn sample_emitters(snapshot: &SceneSnapshot, exposure: f32, count: usize) ->
         let (v, normal, radiance, _) = triangles[t];
         // A uniform point in the triangle from the R2 sequence (Roberts 2018).
         let u = Vec2::new((0.5 + 0.754_877_7 * k as f32).fract(), (0.5 + 0.569_840_3 * k as f32).fract());
-        let (a, b) = if u.x + u.y > 1.0 { (1.0 - u.x, 1.0 - u.y) } else { (u.x, u.y) };
+        let Vec2 { x: a, y: b } = crate::sampling::uniform_triangle(u);
         let position = v[0] + a * (v[1] - v[0]) + b * (v[2] - v[0]);
         let colour = radiance / radiance.max_element();
         samples.push(GpuEmitter {

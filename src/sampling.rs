@@ -104,6 +104,13 @@ pub fn uniform_ball(u: Vec3) -> Vec3 {
     uniform_sphere(Vec2::new(u.x, u.y)) * u.z.cbrt()
 }
 
+/// A uniform point in a triangle from `u ∈ [0,1)²`: the barycentric weights `(s, r)` of its second and
+/// third vertices (the point is `a + (b − a) s + (c − a) r`), the unit square folded onto the triangle.
+#[inline]
+pub fn uniform_triangle(u: Vec2) -> Vec2 {
+    if u.x + u.y > 1.0 { Vec2::new(1.0 - u.x, 1.0 - u.y) } else { u }
+}
+
 /// Density of [`cosine_hemisphere`] for a direction at `cos θ` from the normal.
 #[inline]
 pub fn cosine_hemisphere_pdf(cos_theta: f32) -> f32 {

@@ -827,7 +827,6 @@ fn sidecar(
     }
     if let Some((rh, spawned)) = &headless.spawned_rh {
         let (transform, mean_chord) = rh_live.unwrap_or((*spawned, None));
-        let transform = &transform;
         let rh = rh.effective(transform.to_matrix(), mean_chord);
         map.insert(
             "radiance_hints".into(),

@@ -7,7 +7,7 @@
 
 use std::f32::consts::PI;
 
-use bevy::math::{IVec3, UVec3, Vec3, Vec4};
+use bevy::math::{IVec3, UVec3, Vec2, Vec3, Vec4};
 use rand::RngExt;
 use rayon::prelude::*;
 
@@ -566,7 +566,7 @@ fn emit(
         Source::Emitter(i) => {
             let tri = snapshot.triangle(i);
             let u = uniform2(rng);
-            let (a, b) = if u.x + u.y > 1.0 { (1.0 - u.x, 1.0 - u.y) } else { (u.x, u.y) };
+            let Vec2 { x: a, y: b } = crate::sampling::uniform_triangle(u);
             let p = tri[0] + (tri[1] - tri[0]) * a + (tri[2] - tri[0]) * b;
             let mut n = (tri[1] - tri[0]).cross(tri[2] - tri[0]).normalize_or_zero();
             if n == Vec3::ZERO {

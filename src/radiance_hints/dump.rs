@@ -52,7 +52,7 @@ pub(crate) fn dump_volume(
     let Some(v) = volumes.volumes.first() else {
         // Say so once, rather than leave the file unwritten without a word (the first frames of a run
         // have no volume yet).
-        *frames_without += 1;
+        *frames_without = frames_without.saturating_add(1);
         if *frames_without == 60 {
             warn!("bevy_diffuse_gi: RhVolumeDump asks for {}, but no Radiance Hints volume has been prepared in 60 frames", dump.path.display());
         }

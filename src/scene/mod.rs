@@ -894,7 +894,7 @@ impl SceneSnapshot {
             let u = stream.vertex_4d(i, 0);
             let target = (i as f64 + 0.5) / rays as f64 * total;
             let [a, b, c] = triangles[cdf.partition_point(|x| *x < target).min(triangles.len() - 1)];
-            let (s, r) = if u[0] + u[1] > 1.0 { (1.0 - u[0], 1.0 - u[1]) } else { (u[0], u[1]) };
+            let Vec2 { x: s, y: r } = crate::sampling::uniform_triangle(Vec2::new(u[0], u[1]));
             let side = if u[2] < 0.5 { 1.0 } else { -1.0 };
             let n = (b - a).cross(c - a).normalize_or_zero() * side;
             if n == Vec3::ZERO {

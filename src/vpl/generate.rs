@@ -463,10 +463,7 @@ pub fn ism_samples(snapshot: &SceneSnapshot, count: u32, seed: u32) -> Vec<IsmSa
             let u = stream.vertex_4d(i, 0);
             let target = (i as f64 + u[0] as f64) / count as f64 * total;
             let t = cdf.partition_point(|c| *c < target).min(n - 1);
-            let (mut s, mut r) = (u[1], u[2]);
-            if s + r > 1.0 {
-                (s, r) = (1.0 - s, 1.0 - r);
-            }
+            let Vec2 { x: s, y: r } = crate::sampling::uniform_triangle(Vec2::new(u[1], u[2]));
             // Shuffle key: a hash of the index.
             let key = (i.wrapping_mul(0x9E37_79B9) ^ seed).rotate_left(13).wrapping_mul(0x85EB_CA6B);
             (key, IsmSample { triangle: t as u32, s, r })
@@ -540,11 +537,12 @@ pub fn traced_shadow_maps(snapshot: &SceneSnapshot, vpls: &[Vpl], side: u32) -> 
                 let Some(first) = snapshot.intersect(vpl.position, direction, 0.0, f32::INFINITY) else {
                     continue;
                 };
-                let cos_first = snapshot.surface(vpl.position, direction, &first).geometric_normal.dot(direction);
+                // Only the faces' orientation is needed: the geometric normals, not the shaded surfaces.
+                let cos_first = snapshot.geometric_normal(first.triangle).dot(direction);
                 let second = snapshot.intersect(vpl.position, direction, first.t + epsilon, f32::INFINITY);
                 let exit = second.as_ref().filter(|s| {
                     // Entered at the first surface and left at the second: a solid's far side.
-                    cos_first < 0.0 && snapshot.surface(vpl.position, direction, s).geometric_normal.dot(direction) > 0.0
+                    cos_first < 0.0 && snapshot.geometric_normal(s.triangle).dot(direction) > 0.0
                 });
                 let far = match (exit, second) {
                     (Some(exit), _) => exit.t,
