@@ -240,6 +240,8 @@ mod tests {
         assert_eq!((clean.samples_per_axis, clean.intensity), (1, 1.0));
         let big = DrmSettings { samples_per_axis: 99, ..default() }.sanitized().0;
         assert_eq!(big.samples_per_axis, DrmSettings::MAX_SAMPLES_PER_AXIS);
+        // A negative intensity is clamped to 0 (no light; the GPU test of absurd settings checks the light).
+        assert_eq!(DrmSettings { intensity: -1.0, ..default() }.sanitized().0.intensity, 0.0);
     }
 
     #[test]

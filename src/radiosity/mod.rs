@@ -814,6 +814,8 @@ mod tests {
         assert_eq!(names, ["bins", "bounces", "stop_threshold", "element_size", "sky", "sky"]);
         assert_eq!((clean.bins, clean.bounces, clean.stop_threshold, clean.element_size), (2, 16, 0.01, 0.0));
         assert_eq!(clean.sky, Vec3::new(0.0, 1.0, 0.0));
+        // A negative intensity is clamped to 0 (no light; the GPU test of absurd settings checks the light).
+        assert_eq!(RadiositySettings { intensity: -1.0, ..default() }.sanitized().0.intensity, 0.0);
     }
 
     #[test]
