@@ -412,7 +412,7 @@ fn spawn_rh_volume(
 /// Hints volume is fitted around it once the scale has propagated ([`scale_propagated`]).
 fn scale_scene(world: &mut World) {
     let headless = world.resource::<Headless>();
-    let scale = headless.options.scene_scale;
+    let scale = scene_scale(&headless.options);
     if headless.scaled_frames > 0 {
         world.resource_mut::<Headless>().scaled_frames += 1;
         return;
@@ -420,14 +420,23 @@ fn scale_scene(world: &mut World) {
     if scale == 1.0 || world.get_resource::<SceneStatus>() != Some(&SceneStatus::Ready) {
         return;
     }
+    if scale != headless.options.scene_scale {
+        warn!("headless: scene_scale {} is outside 1e-4..=1e6, using {scale}", headless.options.scene_scale);
+    }
     scale_world(world, scale);
     world.resource_mut::<Headless>().scaled_frames = 1;
+}
+
+/// [`HeadlessOptions::scene_scale`] clamped to its range (1 for a non-finite value).
+fn scene_scale(options: &HeadlessOptions) -> f32 {
+    let s = options.scene_scale;
+    if s.is_finite() { s.clamp(1e-4, 1e6) } else { 1.0 }
 }
 
 /// Whether the scene's `GlobalTransform`s are those of its final scale (propagated in the `PostUpdate`
 /// after [`scale_scene`] ran in `Last`).
 fn scale_propagated(headless: &Headless) -> bool {
-    headless.options.scene_scale == 1.0 || headless.scaled_frames >= 2
+    scene_scale(&headless.options) == 1.0 || headless.scaled_frames >= 2
 }
 
 /// Scales every root entity's place and size by `s`, and the lights' ranges and shadow near planes and the

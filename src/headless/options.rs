@@ -143,7 +143,8 @@ pub struct HeadlessOptions {
     /// Scales the whole scene (every root entity's place and size, the lights' ranges and the camera's
     /// planes) by this factor once it has loaded: the same scene in other units. An emissive-lit scene's
     /// image does not change with it; a scene lit by lights of fixed intensity gets `1/scale²` of the
-    /// light. 1 leaves the scene as it is.
+    /// light. A factor (no unit); default 1, which leaves the scene as it is; valid 10⁻⁴–10⁶ (others are
+    /// clamped with a warning, a non-finite one is 1). Cost: none beyond the scene's own at that scale.
     pub scene_scale: f32,
     /// After the `frames`, go on rendering until the CPU methods' background work (radiosity's solve,
     /// the photon grid's preparation) has caught up with the scene and been blended in, for at most
