@@ -123,6 +123,184 @@ impl<K: PartialEq + Clone, T: Send + 'static> BackgroundJob<K, T> {
     }
 }
 
+/// What a CPU method's result depends on in the scene: the snapshot's generations, the lights that
+/// bounce and the camera's exposure (the emission of `emissive.alpha < 1` materials depends on it).
+#[derive(Clone, Debug, PartialEq)]
+pub struct SceneInputs {
+    pub geometry: u64,
+    pub lights: u64,
+    /// The [`GiLight`](crate::light::GiLight) entities, sorted.
+    pub gi_lights: Vec<bevy::prelude::Entity>,
+    /// The exposure's bits.
+    pub exposure: u32,
+    pub environment: u64,
+}
+
+impl SceneInputs {
+    pub fn of(snapshot: &crate::scene::SceneSnapshot, gi_lights: impl Iterator<Item = bevy::prelude::Entity>, exposure: f32) -> Self {
+        let mut gi_lights: Vec<_> = gi_lights.collect();
+        gi_lights.sort();
+        Self {
+            geometry: snapshot.geometry_generation,
+            lights: snapshot.light_generation,
+            gi_lights,
+            exposure: exposure.to_bits(),
+            environment: snapshot.environment_generation,
+        }
+    }
+
+    /// The exposure.
+    pub fn exposure(&self) -> f32 {
+        f32::from_bits(self.exposure)
+    }
+}
+
+/// The inputs of one background task of a CPU method: the scene's and the settings the task reads
+/// (not those applied when drawing, whose change starts no task).
+#[derive(Clone, Debug, PartialEq)]
+pub struct JobKey<S> {
+    pub scene: SceneInputs,
+    pub settings: S,
+}
+
+/// The scaffold of a method that solves on the CPU (radiosity, the photon grid): the state its
+/// background work keeps between runs (`C`: elements and links, voxels), moved into each task and
+/// handed back with its result `R`, and the running task.
+pub struct CpuJob<S, C, R> {
+    /// `None` while a task holds it (or before the first).
+    core: Option<Box<C>>,
+    job: BackgroundJob<JobKey<S>, (Box<C>, R)>,
+}
+
+impl<S, C, R> Default for CpuJob<S, C, R> {
+    fn default() -> Self {
+        Self { core: None, job: BackgroundJob::default() }
+    }
+}
+
+impl<S: Clone + PartialEq + Send + Sync + 'static, C: Default + Send + 'static, R: Send + 'static> CpuJob<S, C, R> {
+    /// Whether anything is kept or running (false after [`reset`](Self::reset)).
+    pub fn is_active(&self) -> bool {
+        self.core.is_some() || self.job.is_running()
+    }
+
+    /// Forgets the kept state and abandons the running task (the method was switched off).
+    pub fn reset(&mut self) {
+        self.job.reset();
+        self.core = None;
+    }
+
+    /// The result of a finished task, once; its state comes back. Never waits.
+    pub fn poll(&mut self) -> Option<R> {
+        let (_, (core, result)) = self.job.poll()?;
+        self.core = Some(core);
+        Some(result)
+    }
+
+    /// Whether a task should start for `key`: none runs and the last one had other inputs (changes
+    /// made while a task runs are coalesced into the next).
+    pub fn wants(&self, key: &JobKey<S>) -> bool {
+        self.job.wants(key)
+    }
+
+    /// Starts `work` on the kept state for the inputs `key`, on the background pool. Callers start only
+    /// when [`wants`](Self::wants) says so.
+    pub fn start(&mut self, key: &JobKey<S>, work: impl FnOnce(&mut C, &JobKey<S>) -> R + Send + 'static) {
+        let mut core = self.core.take().unwrap_or_default();
+        let task_key = key.clone();
+        self.job.start(key.clone(), move || {
+            let result = work(&mut core, &task_key);
+            (core, result)
+        });
+    }
+
+    /// Whether the result shown is not yet that of `key`: a task runs, or the last one had other inputs.
+    pub fn is_stale(&self, key: &JobKey<S>) -> bool {
+        self.job.is_running() || !self.job.is_current(key)
+    }
+}
+
+/// The first active camera using `method`, with its settings (sanitised; the defaults when it has
+/// none) and its exposure: the camera whose settings a scene-wide CPU method follows.
+pub fn active_camera<S: crate::settings::GiSettings + Default>(
+    cameras: &bevy::prelude::Query<(&bevy::prelude::Camera, &crate::camera::DiffuseGi, Option<&S>, Option<&bevy::camera::Exposure>)>,
+    method: crate::camera::GiMethod,
+) -> Option<(S, f32)> {
+    let (_, _, settings, exposure) =
+        cameras.iter().find(|(camera, gi, _, _)| camera.is_active && gi.enabled && gi.method == method)?;
+    Some((settings.cloned().unwrap_or_default().sanitized().0, exposure.copied().unwrap_or_default().exposure()))
+}
+
+/// What every CPU method's main-world update reads (the cameras with the method's settings `S`, the
+/// GI lights, the snapshot) and where it reports (its main-thread cost, its status, its stage times).
+#[derive(bevy::ecs::system::SystemParam)]
+pub struct CpuMethodParams<'w, 's, S: crate::settings::GiSettings + Default> {
+    commands: bevy::prelude::Commands<'w, 's>,
+    cameras: bevy::prelude::Query<
+        'w,
+        's,
+        (
+            &'static bevy::prelude::Camera,
+            &'static crate::camera::DiffuseGi,
+            Option<&'static S>,
+            Option<&'static bevy::camera::Exposure>,
+        ),
+    >,
+    gi_lights: bevy::prelude::Query<'w, 's, bevy::prelude::Entity, bevy::prelude::With<crate::light::GiLight>>,
+    pub snapshot: Option<bevy::prelude::Res<'w, crate::scene::SceneSnapshot>>,
+    pub cost: bevy::prelude::ResMut<'w, crate::MainThreadCost>,
+    pub status: bevy::prelude::Res<'w, crate::method::GiMethodStatus>,
+    pub diagnostics: bevy::diagnostic::Diagnostics<'w, 's>,
+}
+
+/// Whether a camera uses a CPU method this frame.
+pub enum MethodUse<S> {
+    /// No active camera uses it: its state is dropped.
+    Off,
+    /// Used, but the scene snapshot does not exist yet (it is requested).
+    Waiting,
+    /// Used, with the first camera's settings, over the scene as the snapshot has it now.
+    On { settings: S, scene: SceneInputs },
+}
+
+impl<S: crate::settings::GiSettings + Default> CpuMethodParams<'_, '_, S> {
+    /// Whether a camera uses `method` and, when the snapshot exists, with what settings and scene.
+    pub fn method_use(&mut self, method: crate::camera::GiMethod) -> MethodUse<S> {
+        let Some((settings, exposure)) = active_camera(&self.cameras, method) else {
+            return MethodUse::Off;
+        };
+        let Some(snapshot) = self.snapshot.as_deref() else {
+            self.commands.init_resource::<crate::scene::SceneSnapshot>();
+            return MethodUse::Waiting;
+        };
+        MethodUse::On { scene: SceneInputs::of(snapshot, self.gi_lights.iter(), exposure), settings }
+    }
+}
+
+/// The plugin steps of a CPU method: its stage diagnostics (ms), its main-world state, output and
+/// activity resources, the output's extraction, and its update system (after the snapshot's).
+pub(crate) fn add_cpu_method<State, Output, Activity, Marker>(
+    app: &mut bevy::prelude::App,
+    stages: &[bevy::diagnostic::DiagnosticPath],
+    update: impl bevy::prelude::IntoScheduleConfigs<bevy::ecs::system::ScheduleSystem, Marker>,
+) where
+    State: bevy::prelude::Resource + Default,
+    Output: bevy::prelude::Resource<Mutability = bevy::ecs::component::Mutable>
+        + bevy::render::extract_resource::ExtractResource<Source = Output>
+        + Default,
+    Activity: bevy::prelude::Resource + Default,
+{
+    use bevy::diagnostic::{Diagnostic, RegisterDiagnostic};
+    for path in stages {
+        app.register_diagnostic(Diagnostic::new(path.clone()).with_suffix(" ms"));
+    }
+    app.init_resource::<State>()
+        .init_resource::<Output>()
+        .init_resource::<Activity>()
+        .add_plugins(bevy::render::extract_resource::ExtractResourcePlugin::<Output>::default())
+        .add_systems(bevy::prelude::PostUpdate, update.after(crate::scene::SceneSnapshotSystems::Update));
+}
+
 /// Records the stage times of a finished background task in Bevy's diagnostics, one measurement per
 /// stage that ran (a stage that did not run reports 0 and is left out).
 pub fn record_stages(diagnostics: &mut bevy::diagnostic::Diagnostics, stages: &[(&bevy::diagnostic::DiagnosticPath, f32)]) {

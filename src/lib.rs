@@ -40,6 +40,7 @@ pub mod hdr_image;
 #[cfg(feature = "tools")]
 pub mod headless;
 pub mod light;
+pub mod method;
 pub mod metrics;
 pub mod photon_grid;
 pub mod radiance_hints;
@@ -57,6 +58,7 @@ pub mod ssbc;
 #[cfg(feature = "egui")]
 pub mod ui;
 pub mod vpl;
+pub mod voxels;
 
 use bevy::pbr::DefaultOpaqueRendererMethod;
 use bevy::prelude::*;
@@ -105,9 +107,14 @@ impl Plugin for DiffuseGiPlugin {
         app.init_resource::<DiffuseGiWarnings>().init_resource::<MainThreadCost>();
         // Pipelines that fail to compile, seen by the render world and read by tools and tests.
         let pipeline_errors = GiPipelineErrors::default();
-        app.insert_resource(pipeline_errors.clone());
+        // Each method's status, written by the main world (background work) and by the render world's
+        // passes (when they drew), read by the panel, the tools and the tests.
+        let status = method::GiMethodStatus::default();
+        app.insert_resource(pipeline_errors.clone())
+            .insert_resource(status.clone())
+            .add_systems(PostUpdate, method::forget_unused_methods);
         if let Some(render_app) = app.get_sub_app_mut(bevy::render::RenderApp) {
-            render_app.insert_resource(pipeline_errors).add_systems(
+            render_app.insert_resource(pipeline_errors).insert_resource(status).add_systems(
                 bevy::render::Render,
                 check_pipelines.in_set(bevy::render::RenderSystems::Cleanup),
             );
@@ -265,8 +272,7 @@ pub struct DiffuseGiWarnings {
     pub messages: Vec<String>,
 }
 
-/// A GPU capability a method needs: `(name, required, found)`.
-pub type Shortfall = (&'static str, u64, u64);
+pub use method::Shortfall;
 
 /// The GPU check of a method's `finish`: `missing` lists what the device lacks, given its limits and
 /// downlevel flags (all flags when the adapter is unknown). On a shortfall, logs one warning naming the
@@ -275,7 +281,7 @@ pub type Shortfall = (&'static str, u64, u64);
 pub(crate) fn gpu_supports(
     app: &mut App,
     method: &str,
-    missing: impl FnOnce(&bevy::render::settings::WgpuLimits, bevy::render::render_resource::DownlevelFlags) -> Vec<Shortfall>,
+    missing: impl FnOnce(&crate::method::GpuCapabilities) -> Vec<Shortfall>,
 ) -> bool {
     use bevy::render::RenderApp;
     use bevy::render::render_resource::DownlevelFlags;
@@ -290,7 +296,8 @@ pub(crate) fn gpu_supports(
         .world()
         .get_resource::<RenderAdapter>()
         .map_or(DownlevelFlags::all(), |a| a.get_downlevel_capabilities().flags);
-    let Some((name, required, found)) = missing(&device.limits(), flags).into_iter().next() else {
+    let gpu = crate::method::GpuCapabilities { limits: device.limits(), flags };
+    let Some((name, required, found)) = missing(&gpu).into_iter().next() else {
         return true;
     };
     let message = format!(

@@ -9,9 +9,17 @@ pub trait GiSettings: Component + Clone {
     /// The component's name in warnings (`"RsmGatherSettings"`).
     const NAME: &'static str;
 
+    /// Clamps every field to its valid range, naming in `c` each field that was not.
+    fn clamp(&mut self, c: &mut Clamped);
+
     /// The settings with every field in its valid range, and each field that was not, with the value
     /// used instead.
-    fn sanitized(&self) -> (Self, Vec<(&'static str, String)>);
+    fn sanitized(&self) -> (Self, Vec<(&'static str, String)>) {
+        let mut s = self.clone();
+        let mut c = Clamped::default();
+        s.clamp(&mut c);
+        (s, c.fields)
+    }
 }
 
 /// Collects the fields a sanitisation changed.

@@ -304,21 +304,19 @@ fn ci_window_size(mut windows: Query<&mut Window, With<bevy::window::PrimaryWind
     }
 }
 
-/// Whether a frame shows what it should: no pipeline waiting to compile, and no CPU method waiting for
-/// its first background solve (it draws no bounced light until then). Later solves do not count: an
-/// example that moves something keeps them running.
+/// Whether a frame shows what it should: no pipeline waiting to compile, and no method waiting for its
+/// first background result (a CPU method's solve, the VPL walks: it draws no bounced light until then).
+/// Later results do not count: an example that moves something keeps them running.
 #[derive(bevy::ecs::system::SystemParam)]
 struct CiFrameReady<'w> {
     pipelines: Res<'w, CiPipelinesReady>,
-    radiosity: Option<Res<'w, bevy_diffuse_gi::radiosity::RadiosityActivity>>,
-    photon_grid: Option<Res<'w, bevy_diffuse_gi::photon_grid::PhotonGridActivity>>,
+    methods: Option<Res<'w, bevy_diffuse_gi::method::GiMethodStatus>>,
 }
 
 impl CiFrameReady<'_> {
     fn get(&self) -> bool {
-        let first_solve_pending = self.radiosity.as_ref().is_some_and(|a| a.busy && !a.ready)
-            || self.photon_grid.as_ref().is_some_and(|a| a.busy && !a.ready);
-        self.pipelines.0.load(std::sync::atomic::Ordering::Relaxed) && !first_solve_pending
+        let first_result_pending = self.methods.as_ref().is_some_and(|m| m.any_awaiting_first_result());
+        self.pipelines.0.load(std::sync::atomic::Ordering::Relaxed) && !first_result_pending
     }
 }
 

@@ -418,6 +418,171 @@ pub fn begin_target_pass<'a>(ctx: &'a mut RenderContext, label: &'static str, vi
     })
 }
 
+/// What a camera's view offers a method's per-view pass: the query every pass that writes the frame's
+/// target runs on.
+#[derive(bevy::ecs::query::QueryData)]
+pub struct GiView {
+    pub entity: Entity,
+    pub gi: &'static ExtractedDiffuseGi,
+    pub view_offset: &'static ViewUniformOffset,
+    pub prepass: &'static ViewPrepassTextures,
+    pub target: &'static GiViewTarget,
+}
+
+/// The render-world resources every per-view pass reads: pipelines, the view uniforms and the
+/// methods' status (a pass that drew says so).
+#[derive(bevy::ecs::system::SystemParam)]
+pub struct GiViewPassParams<'w> {
+    pub pipeline_cache: Res<'w, PipelineCache>,
+    pub view_uniforms: Res<'w, ViewUniforms>,
+    pub status: Res<'w, crate::method::GiMethodStatus>,
+}
+
+/// Registers the render-world side every per-view method shares: its GPU state `G`, the cache of its
+/// specialised view pipelines `P` (made at `RenderStartup` by `init`), its per-frame preparation (in
+/// `PrepareResources`) and its per-view pass (in [`GiViewSystems::Produce`], after the target is
+/// cleared).
+pub fn add_view_method<G, P, M1, M2, M3>(
+    render_app: &mut bevy::app::SubApp,
+    init: impl IntoScheduleConfigs<bevy::ecs::system::ScheduleSystem, M1>,
+    prepare: impl IntoScheduleConfigs<bevy::ecs::system::ScheduleSystem, M2>,
+    pass: impl IntoScheduleConfigs<bevy::ecs::system::ScheduleSystem, M3>,
+) where
+    G: Resource + Default,
+    P: SpecializedRenderPipeline + Resource,
+    P::Key: Send + Sync,
+{
+    render_app
+        .init_resource::<G>()
+        .init_resource::<SpecializedRenderPipelines<P>>()
+        .add_systems(bevy::render::RenderStartup, init)
+        .add_systems(bevy::render::Render, prepare.in_set(bevy::render::RenderSystems::PrepareResources))
+        .add_systems(bevy::core_pipeline::Core3d, pass.in_set(GiViewSystems::Produce).after(clear_gi_target));
+}
+
+/// A method's view pipelines by resolution (full, half), specialised the first frame a view of the
+/// method needs one: for the methods whose per-view pipeline varies by nothing else.
+#[derive(Default)]
+pub struct PipelinesByResolution([Option<CachedRenderPipelineId>; 2]);
+
+impl PipelinesByResolution {
+    /// Specialises the pipelines the views using `method` need. Returns whether any view uses it.
+    pub fn specialize_for<P: SpecializedRenderPipeline<Key = bool>>(
+        &mut self,
+        views: &Query<&ExtractedDiffuseGi>,
+        method: crate::camera::GiMethod,
+        specialized: &mut SpecializedRenderPipelines<P>,
+        pipeline_cache: &PipelineCache,
+        pipelines: &P,
+    ) -> bool {
+        let mut used = false;
+        for gi in views.iter().filter(|gi| gi.0.method == method) {
+            used = true;
+            let half = gi.0.half_resolution;
+            if self.0[half as usize].is_none() {
+                self.0[half as usize] = Some(specialized.specialize(pipeline_cache, pipelines, half));
+            }
+        }
+        used
+    }
+
+    /// The pipeline of a view at full or half resolution, once specialised.
+    pub fn get(&self, half_resolution: bool) -> Option<CachedRenderPipelineId> {
+        self.0[half_resolution as usize]
+    }
+}
+
+/// What every method's per-view pass shares, written once: the view's bind group (group 0: the view
+/// uniform, the prepass depth and the deferred G-buffer), the fullscreen triangle, the pipeline that
+/// writes the frame's target at the view's resolution, and the draw itself.
+#[derive(Clone)]
+pub struct GiViewPass {
+    pub view_layout: BindGroupLayoutDescriptor,
+    fullscreen: VertexState,
+}
+
+impl GiViewPass {
+    /// Built at `RenderStartup` (needs Bevy's [`FullscreenShader`]).
+    pub fn from_world(world: &World) -> Self {
+        Self {
+            view_layout: BindGroupLayoutDescriptor::new(
+                "diffuse_gi_view_layout",
+                &BindGroupLayoutEntries::sequential(
+                    ShaderStages::VERTEX_FRAGMENT,
+                    (uniform_buffer::<ViewUniform>(true), texture_depth_2d(), texture_2d(TextureSampleType::Uint)),
+                ),
+            ),
+            fullscreen: world.resource::<FullscreenShader>().to_vertex_state(),
+        }
+    }
+
+    /// A fullscreen pipeline writing the target with `shader`'s fragment `entry`: the view's group, then
+    /// `layouts`; the crate's shared shader defs, `GI_SCALE` (1, or 2 at half resolution) and `defs`.
+    /// `blend: None` replaces the target (the camera's one method); volumes that add up pass a blend.
+    #[expect(clippy::too_many_arguments, reason = "what differs between the methods' view pipelines, named")]
+    pub fn pipeline(
+        &self,
+        label: &'static str,
+        shader: &Handle<Shader>,
+        entry: &'static str,
+        half_resolution: bool,
+        layouts: &[&BindGroupLayoutDescriptor],
+        defs: Vec<ShaderDefVal>,
+        blend: Option<BlendState>,
+    ) -> RenderPipelineDescriptor {
+        let mut shader_defs = crate::shared_shader_defs();
+        shader_defs.push(ShaderDefVal::Int("GI_SCALE".into(), if half_resolution { 2 } else { 1 }));
+        shader_defs.extend(defs);
+        let mut layout = vec![self.view_layout.clone()];
+        layout.extend(layouts.iter().map(|l| (*l).clone()));
+        RenderPipelineDescriptor {
+            label: Some(label.into()),
+            layout,
+            vertex: self.fullscreen.clone(),
+            fragment: Some(FragmentState {
+                shader: shader.clone(),
+                shader_defs,
+                entry_point: Some(entry.into()),
+                targets: vec![Some(ColorTargetState { format: GI_TARGET_FORMAT, blend, write_mask: ColorWrites::ALL })],
+            }),
+            ..default()
+        }
+    }
+
+    /// Draws `vertices` with `pipeline` into the view's target inside the GPU time span `span`: the
+    /// view's group first, then `groups`; records that `method` drew. Draws nothing (and returns false)
+    /// while the view's uniforms or prepass textures are not there yet.
+    #[expect(clippy::too_many_arguments, reason = "one draw, named once for every method")]
+    pub fn draw(
+        &self,
+        ctx: &mut RenderContext,
+        params: &GiViewPassParams,
+        view: &GiViewItem,
+        method: crate::camera::GiMethod,
+        (span, label): (&'static str, &'static str),
+        pipeline: &RenderPipeline,
+        groups: &[(&BindGroup, &[u32])],
+        vertices: std::ops::Range<u32>,
+    ) -> bool {
+        let (Some(uniforms), Some(depth), Some(gbuffer)) =
+            (params.view_uniforms.uniforms.binding(), view.prepass.depth_view(), view.prepass.deferred_view())
+        else {
+            return false;
+        };
+        let view_group = ctx.render_device().create_bind_group(
+            "diffuse_gi_view_bind_group",
+            &params.pipeline_cache.get_bind_group_layout(&self.view_layout),
+            &BindGroupEntries::sequential((uniforms, depth, gbuffer)),
+        );
+        let offsets = [view.view_offset.offset];
+        let mut all = vec![(&view_group, &offsets[..])];
+        all.extend_from_slice(groups);
+        draw_vertices_into_target(ctx, span, label, view.target, pipeline, &all, vertices);
+        params.status.drew(method);
+        true
+    }
+}
+
 /// Draws a method's fullscreen pass into the camera's indirect-light target, inside the GPU time span
 /// `span`: `groups` are bound in order (group 0 is usually the view's, with its uniform offset), then one
 /// triangle covers the target. How every method writes the frame's target.

@@ -488,7 +488,7 @@ fn drive(
     snapshot_timings: Res<crate::scene::SnapshotTimings>,
     radiosity: Res<crate::radiosity::RadiosityActivity>,
     photon_grid: Res<crate::photon_grid::PhotonGridActivity>,
-    vpls: Res<crate::vpl::VplSet>,
+    (vpls, methods): (Res<crate::vpl::VplSet>, Res<crate::method::GiMethodStatus>),
     (device, warnings, rh_volumes): (
         Option<Res<bevy::render::renderer::RenderDevice>>,
         Option<Res<crate::DiffuseGiWarnings>>,
@@ -540,7 +540,7 @@ fn drive(
             let waited = headless.render_start.is_some_and(|s| s.elapsed() > Duration::from_secs(limit));
             // Lights that move every frame (`--animate-light`) keep the background busy for good: the
             // frames are measured as they come.
-            let background_done = !(radiosity.busy || photon_grid.busy || vpls.busy) || waited || headless.options.animate_light;
+            let background_done = !methods.any_busy() || waited || headless.options.animate_light;
             if (settled || headless.phase_frames > MAX_SETTLE_FRAMES) && background_done {
                 headless.phase = Phase::Rendering;
                 headless.phase_frames = 0;
@@ -589,7 +589,7 @@ fn drive(
             headless.frame_starts.push(Instant::now());
             // With `wait_background`, the CPU methods' work must have caught up too, for as many
             // readbacks as a settled image needs.
-            let background_busy = radiosity.busy || photon_grid.busy || vpls.busy;
+            let background_busy = methods.any_busy();
             let received = headless.frames.lock().expect("frames lock").received;
             let counted = received >= headless.receipts_at_render + headless.options.frames;
             if let Some(limit) = headless.options.wait_background.filter(|_| counted) {

@@ -237,34 +237,13 @@ impl VGrid {
         if len < 1e-5 || !len.is_finite() {
             return false;
         }
-        let d = delta / len;
-        let mut v = a.floor().as_ivec3();
         let end = b.floor().as_ivec3();
-        let step = d.signum().as_ivec3();
-        let inv = Vec3::ONE / d.abs().max(Vec3::splat(1e-8));
-        let frac = a - a.floor();
-        let mut t_max = Vec3::select(d.cmplt(Vec3::ZERO), frac, Vec3::ONE - frac) * inv;
-        t_max = Vec3::select(d.abs().cmplt(Vec3::splat(1e-8)), Vec3::splat(3.0e38), t_max);
+        let mut walk = crate::voxels::VoxelWalk::new(a, delta / len);
         for _ in 0..(len.ceil() as i32 * 3 + 3) {
-            if t_max.x < t_max.y && t_max.x < t_max.z {
-                if t_max.x >= len {
-                    return false;
-                }
-                t_max.x += inv.x;
-                v.x += step.x;
-            } else if t_max.y < t_max.z {
-                if t_max.y >= len {
-                    return false;
-                }
-                t_max.y += inv.y;
-                v.y += step.y;
-            } else {
-                if t_max.z >= len {
-                    return false;
-                }
-                t_max.z += inv.z;
-                v.z += step.z;
+            if walk.advance() >= len {
+                return false;
             }
+            let v = walk.voxel();
             if v == end {
                 return false;
             }
@@ -288,21 +267,11 @@ impl VGrid {
         let v_cell = layout.v_cell();
         let a = (origin - layout.origin) / v_cell;
         let d = direction;
-        let moving = d.abs().cmpge(Vec3::splat(1e-8));
-        let step = d.signum().as_ivec3();
-        let inv = Vec3::ONE / d.abs().max(Vec3::splat(1e-8));
-        // The cell at distance `t0` (V-cell units) and the distances to its next boundary per axis.
-        let start = |t0: f32| {
-            let p = a + d * t0;
-            let frac = p - p.floor();
-            let t_max = Vec3::select(d.cmplt(Vec3::ZERO), frac, Vec3::ONE - frac) * inv + t0;
-            (p.floor().as_ivec3(), Vec3::select(moving, t_max, Vec3::splat(3.0e38)))
-        };
+        let mut walk = crate::voxels::VoxelWalk::new(a, d);
         let dims = layout.v_dims().as_ivec3();
         let per = V_PER_SH as i32;
-        let (mut v, mut t_max) = start(0.0);
-        let mut t = 0.0f32;
         for _ in 0..(4 * (dims.x + dims.y + dims.z) + 8) {
+            let v = walk.voxel();
             if v.cmplt(IVec3::ZERO).any() || v.cmpge(dims).any() {
                 return None;
             }
@@ -321,26 +290,13 @@ impl VGrid {
                 if !t_exit.is_finite() {
                     return None;
                 }
-                t = t_exit.max(t) + 1e-4;
-                (v, t_max) = start(t);
+                walk.restart(t_exit.max(walk.t()) + 1e-4);
                 continue;
             }
             if self.occupied(v) {
-                return Some((v.as_uvec3(), t * v_cell));
+                return Some((v.as_uvec3(), walk.t() * v_cell));
             }
-            if t_max.x < t_max.y && t_max.x < t_max.z {
-                t = t_max.x;
-                t_max.x += inv.x;
-                v.x += step.x;
-            } else if t_max.y < t_max.z {
-                t = t_max.y;
-                t_max.y += inv.y;
-                v.y += step.y;
-            } else {
-                t = t_max.z;
-                t_max.z += inv.z;
-                v.z += step.z;
-            }
+            walk.advance();
         }
         None
     }

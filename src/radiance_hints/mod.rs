@@ -211,15 +211,13 @@ mod render;
 pub mod settings;
 pub mod voxelize;
 
-use bevy::core_pipeline::Core3d;
-use bevy::core_pipeline::schedule::camera_driver;
-use bevy::render::renderer::{RenderGraph, RenderGraphSystems};
-
-use crate::composite::GiViewSystems;
+use bevy::app::SubApp;
 use bevy::prelude::*;
-use bevy::render::render_resource::{SpecializedComputePipelines, SpecializedRenderPipelines};
-use bevy::render::{ExtractSchedule, Render, RenderApp, RenderStartup, RenderSystems};
+use bevy::render::RenderApp;
 use bevy::shader::Shader;
+
+use crate::camera::GiMethod;
+use crate::method::{GiMethodModule, GpuCapabilities, Shortfall};
 
 pub use activity::{RadianceHintsActivity, RhVolumeActivity};
 pub use cascade::{CascadeLevel, RadianceHintsCascade};
@@ -259,27 +257,6 @@ pub struct RhShaders {
     pub reconstruct: Handle<Shader>,
     /// Import libraries, kept alive.
     pub libraries: Vec<Handle<Shader>>,
-}
-
-/// The GPU capabilities Radiance Hints needs, as `(name, required, found)` for every shortfall.
-pub fn missing_capabilities(limits: &bevy::render::settings::WgpuLimits, compute: bool, indirect: bool) -> Vec<crate::Shortfall> {
-    let mut missing = Vec::new();
-    let mut need = |name, required: u64, found: u64| {
-        if found < required {
-            missing.push((name, required, found));
-        }
-    };
-    need("compute shaders (DownlevelFlags::COMPUTE_SHADERS)", 1, compute as u64);
-    need("indirect dispatch (DownlevelFlags::INDIRECT_EXECUTION)", 1, indirect as u64);
-    need("max_storage_buffers_per_shader_stage", 8, limits.max_storage_buffers_per_shader_stage as u64);
-    need("max_storage_textures_per_shader_stage", 1, limits.max_storage_textures_per_shader_stage as u64);
-    let threads = crate::WORKGROUP_SIZE as u64;
-    need("max_compute_workgroup_size_x", threads, limits.max_compute_workgroup_size_x as u64);
-    need("max_compute_invocations_per_workgroup", threads, limits.max_compute_invocations_per_workgroup as u64);
-    need("max_color_attachments", 3, limits.max_color_attachments as u64);
-    need("max_color_attachment_bytes_per_sample", 32, limits.max_color_attachment_bytes_per_sample as u64);
-    need("max_texture_array_layers", 6, limits.max_texture_array_layers as u64);
-    missing
 }
 
 /// Radiance Hints: components, extraction and render systems. Added by [`crate::DiffuseGiPlugin`].
@@ -328,8 +305,8 @@ impl Plugin for RadianceHintsPlugin {
         shaders.libraries.extend([occupancy, packed]);
         #[cfg(feature = "tools")]
         app.add_plugins(bevy::render::extract_resource::ExtractResourcePlugin::<dump::RhVolumeDump>::default());
-        app.register_type::<RadianceHintsVolume>()
-            .register_type::<RadianceHintsCascade>()
+        crate::method::build_method::<Self>(app);
+        app.register_type::<RadianceHintsCascade>()
             .register_type::<crate::camera::DiffuseGi>()
             .add_systems(
                 PostUpdate,
@@ -340,7 +317,6 @@ impl Plugin for RadianceHintsPlugin {
             .add_systems(
                 PostUpdate,
                 (
-                    crate::settings::validate_settings::<RadianceHintsVolume>,
                     extract::validate_lights,
                     extract::validate_transforms,
                     extract::ensure_snapshot,
@@ -357,56 +333,34 @@ impl Plugin for RadianceHintsPlugin {
     }
 
     fn finish(&self, app: &mut App) {
-        use bevy::render::render_resource::DownlevelFlags;
-        let supported = crate::gpu_supports(app, "Radiance Hints", |limits, flags| {
-            missing_capabilities(
-                limits,
-                flags.contains(DownlevelFlags::COMPUTE_SHADERS),
-                flags.contains(DownlevelFlags::INDIRECT_EXECUTION),
-            )
-        });
-        let Some(render_app) = app.get_sub_app_mut(RenderApp).filter(|_| supported) else {
-            return;
-        };
-        render_app
-            .init_resource::<extract::ExtractedRhVolumes>()
-            .init_resource::<prepare::RhVolumesGpu>()
-            .init_resource::<SpecializedComputePipelines<prepare::RhPipelines>>()
-            .init_resource::<SpecializedRenderPipelines<prepare::RhPipelines>>()
-            .add_systems(RenderStartup, init_rh_pipelines)
-            .add_systems(ExtractSchedule, extract::extract_volumes)
-            .add_systems(
-                Render,
-                (
-                    prepare::prepare_rh_volumes
-                        .in_set(RenderSystems::PrepareResources)
-                        .after(crate::rsm::prepare_rsm),
-                    prepare::prepare_rh_bind_groups.in_set(RenderSystems::PrepareBindGroups),
-                    activity::map_bounce_counts.in_set(RenderSystems::Cleanup),
-                ),
-            )
-            .add_systems(
-                RenderGraph,
-                render::update_gi_volumes
-                    .in_set(RenderGraphSystems::Render)
-                    .after(crate::rsm::draw_rsm)
-                    .before(camera_driver),
-            )
-            .add_systems(
-                Core3d,
-                (render::update_depth_occluded_volumes, render::reconstruct_gi)
-                    .chain()
-                    .in_set(GiViewSystems::Produce)
-                    .after(crate::composite::clear_gi_target),
-            );
-        #[cfg(feature = "tools")]
-        render_app.add_systems(Render, dump::dump_volume.in_set(RenderSystems::Cleanup));
+        crate::method::finish_method::<Self>(app);
     }
 }
 
-fn init_rh_pipelines(world: &mut World) {
-    let pipelines = prepare::RhPipelines::from_world(world);
-    world.insert_resource(pipelines);
+impl GiMethodModule for RadianceHintsPlugin {
+    const METHOD: GiMethod = GiMethod::RadianceHints;
+    const NAME: &'static str = "Radiance Hints";
+    type Settings = RadianceHintsVolume;
+
+    /// Compute shaders with indirect dispatch, eight storage buffers and a storage texture; the RSM's
+    /// three colour attachments of 32 bytes a sample; six-layer texture arrays.
+    fn missing_capabilities(gpu: &GpuCapabilities) -> Vec<Shortfall> {
+        use bevy::render::render_resource::DownlevelFlags;
+        let l = &gpu.limits;
+        gpu.require()
+            .compute()
+            .feature("indirect dispatch (DownlevelFlags::INDIRECT_EXECUTION)", DownlevelFlags::INDIRECT_EXECUTION)
+            .storage_buffers(8)
+            .at_least("max_storage_textures_per_shader_stage", 1, l.max_storage_textures_per_shader_stage as u64)
+            .at_least("max_color_attachments", 3, l.max_color_attachments as u64)
+            .at_least("max_color_attachment_bytes_per_sample", 32, l.max_color_attachment_bytes_per_sample as u64)
+            .at_least("max_texture_array_layers", 6, l.max_texture_array_layers as u64)
+            .missing()
+    }
+
+    fn add_render_systems(render_app: &mut SubApp) {
+        render::add_render_systems(render_app);
+    }
 }
 
 #[cfg(test)]
@@ -415,8 +369,7 @@ mod tests {
 
     #[test]
     fn a_device_with_webgpu_default_limits_runs_radiance_hints() {
-        let limits = bevy::render::settings::WgpuLimits::default();
-        assert!(missing_capabilities(&limits, true, true).is_empty());
+        assert!(RadianceHintsPlugin::missing_capabilities(&GpuCapabilities::desktop()).is_empty());
     }
 
     #[test]
@@ -425,9 +378,11 @@ mod tests {
             max_color_attachment_bytes_per_sample: 16,
             ..bevy::render::settings::WgpuLimits::downlevel_webgl2_defaults()
         };
-        let missing = missing_capabilities(&limits, false, false);
+        let gpu = GpuCapabilities { limits, flags: bevy::render::render_resource::DownlevelFlags::empty() };
+        let missing = RadianceHintsPlugin::missing_capabilities(&gpu);
         let names: Vec<_> = missing.iter().map(|m| m.0).collect();
         assert!(names.iter().any(|n| n.contains("COMPUTE_SHADERS")), "{names:?}");
+        assert!(names.iter().any(|n| n.contains("INDIRECT_EXECUTION")), "{names:?}");
         assert!(names.contains(&"max_color_attachment_bytes_per_sample"), "{names:?}");
         assert!(missing.iter().all(|(_, required, found)| found < required));
     }

@@ -1,12 +1,11 @@
 //! Render world: pipelines, the per-volume buffers, which volumes update this frame, and bind groups.
 
 use bevy::diagnostic::FrameCount;
-use bevy::core_pipeline::FullscreenShader;
 use bevy::math::{IVec3, IVec4, Mat4, UVec3, UVec4, Vec3, Vec4};
 use bevy::platform::collections::HashMap;
 use bevy::prelude::*;
 use bevy::render::render_resource::binding_types::{
-    storage_buffer_read_only_sized, storage_buffer_sized, texture_2d, texture_2d_array, texture_depth_2d,
+    storage_buffer_read_only_sized, storage_buffer_sized, texture_2d_array, texture_depth_2d,
     texture_storage_3d, uniform_buffer,
 };
 use bevy::render::render_resource::*;
@@ -16,7 +15,7 @@ use bevy::shader::ShaderDefVal;
 
 use super::extract::ExtractedRhVolumes;
 use crate::camera::GiMethod;
-use crate::composite::{ExtractedDiffuseGi, GI_TARGET_FORMAT};
+use crate::composite::{ExtractedDiffuseGi, GiViewPass};
 use super::settings::RadianceHintsVolume;
 use super::voxelize::VoxelChange;
 use super::{PACKED_BYTES, RhShaders, field_floats, field_terms};
@@ -171,20 +170,19 @@ pub struct RhPipelines {
     /// Group 0 of the scroll: uniform, the copy of the field before the move, the field.
     pub scroll_layout: BindGroupLayoutDescriptor,
     pub export_layout: BindGroupLayoutDescriptor,
-    /// Group 0 of the reconstruction: view, depth, G-buffer.
-    pub reconstruct_view_layout: BindGroupLayoutDescriptor,
+    /// The reconstruction's per-view pass (group 0: view, depth, G-buffer).
+    pub reconstruct: GiViewPass,
     /// Group 0 of the visibility-mask pass: the region to redo and the masks.
     pub visibility_output_layout: BindGroupLayoutDescriptor,
     /// Group 2 of the reconstruction: the occupancy bits, the visibility masks and the packed field.
     pub lookup_layout: BindGroupLayoutDescriptor,
     shaders: RhShaders,
-    fullscreen: VertexState,
 }
 
 impl FromWorld for RhPipelines {
     fn from_world(world: &mut World) -> Self {
         let shaders = world.resource::<RhShaders>().clone();
-        let fullscreen = world.resource::<FullscreenShader>().to_vertex_state();
+        let reconstruct = GiViewPass::from_world(world);
         let rw = || storage_buffer_sized(false, None);
         let ro = || storage_buffer_read_only_sized(false, None);
         let uniform = || uniform_buffer::<RhVolumeUniform>(true);
@@ -255,39 +253,30 @@ impl FromWorld for RhPipelines {
                 "diffuse_gi_rh_lookup_layout",
                 &BindGroupLayoutEntries::sequential(ShaderStages::FRAGMENT, (ro(), ro(), ro())),
             ),
-            reconstruct_view_layout: BindGroupLayoutDescriptor::new(
-                "diffuse_gi_rh_reconstruct_view_layout",
-                &BindGroupLayoutEntries::sequential(
-                    ShaderStages::FRAGMENT,
-                    (
-                        uniform_buffer::<ViewUniform>(true),
-                        texture_depth_2d(),
-                        texture_2d(TextureSampleType::Uint),
-                    ),
-                ),
-            ),
+            reconstruct,
             shaders,
-            fullscreen,
         }
     }
 }
 
+/// The field's shader defs (on top of the crate's shared ones).
 fn sh_defs(order: ShOrder) -> Vec<ShaderDefVal> {
-    let mut defs = crate::shared_shader_defs();
-    defs.push(ShaderDefVal::UInt("SH_COEFS".into(), order.coefficients() as u32));
-    defs.push(ShaderDefVal::UInt("FIELD_TERMS".into(), field_terms(order) as u32));
-    // The free extents packed into a hint's validity (`voxelize::encode_free_extents`).
-    defs.push(ShaderDefVal::UInt("RH_FREE_BITS".into(), super::voxelize::FREE_BITS));
-    defs.push(ShaderDefVal::UInt("RH_FREE_STEPS".into(), super::voxelize::FREE_STEPS));
-    defs.push(ShaderDefVal::UInt("RH_FREE_MARKER_BIT".into(), super::voxelize::FREE_MARKER_BIT));
-    defs
+    vec![
+        ShaderDefVal::UInt("SH_COEFS".into(), order.coefficients() as u32),
+        ShaderDefVal::UInt("FIELD_TERMS".into(), field_terms(order) as u32),
+        // The free extents packed into a hint's validity (`voxelize::encode_free_extents`).
+        ShaderDefVal::UInt("RH_FREE_BITS".into(), super::voxelize::FREE_BITS),
+        ShaderDefVal::UInt("RH_FREE_STEPS".into(), super::voxelize::FREE_STEPS),
+        ShaderDefVal::UInt("RH_FREE_MARKER_BIT".into(), super::voxelize::FREE_MARKER_BIT),
+    ]
 }
 
 impl SpecializedComputePipeline for RhPipelines {
     type Key = RhPipelineKey;
 
     fn specialize(&self, key: Self::Key) -> ComputePipelineDescriptor {
-        let mut shader_defs = sh_defs(key.sh_order);
+        let mut shader_defs = crate::shared_shader_defs();
+        shader_defs.extend(sh_defs(key.sh_order));
         let (label, layout, shader, entry) = match key.pass {
             RhPass::Inject { depth_occlusion, voxel_visibility } => {
                 // Group 2 (occupancy) is always in the layout; group 3 (a camera's view and depth) only
@@ -356,43 +345,26 @@ impl SpecializedRenderPipeline for RhPipelines {
     type Key = RhReconstructKey;
 
     fn specialize(&self, key: Self::Key) -> RenderPipelineDescriptor {
-        let mut shader_defs = sh_defs(key.sh_order);
-        shader_defs.push(ShaderDefVal::Int("GI_SCALE".into(), if key.half_resolution { 2 } else { 1 }));
+        let mut defs = sh_defs(key.sh_order);
         if key.hint_grid {
-            shader_defs.push("HINT_GRID".into());
+            defs.push("HINT_GRID".into());
         }
         if key.nonlinear_irradiance {
-            shader_defs.push("NONLINEAR_IRRADIANCE".into());
+            defs.push("NONLINEAR_IRRADIANCE".into());
         }
-        RenderPipelineDescriptor {
-            label: Some("diffuse_gi_rh_reconstruct_pipeline".into()),
-            layout: vec![
-                self.reconstruct_view_layout.clone(),
-                self.sample_layout.clone(),
-                self.lookup_layout.clone(),
-            ],
-            vertex: self.fullscreen.clone(),
-            fragment: Some(FragmentState {
-                shader: self.shaders.reconstruct.clone(),
-                shader_defs,
-                entry_point: Some("reconstruct".into()),
-                targets: vec![Some(ColorTargetState {
-                    format: GI_TARGET_FORMAT,
-                    // Volumes side by side add up; the composite divides by the summed weight in alpha. A
-                    // nested volume is drawn over the coarser ones (premultiplied by its weight).
-                    blend: Some(if key.nested {
-                        BlendState::PREMULTIPLIED_ALPHA_BLENDING
-                    } else {
-                        BlendState {
-                            color: BlendComponent { src_factor: BlendFactor::One, dst_factor: BlendFactor::One, operation: BlendOperation::Add },
-                            alpha: BlendComponent { src_factor: BlendFactor::One, dst_factor: BlendFactor::One, operation: BlendOperation::Add },
-                        }
-                    }),
-                    write_mask: ColorWrites::ALL,
-                })],
-            }),
-            ..default()
-        }
+        let add = BlendComponent { src_factor: BlendFactor::One, dst_factor: BlendFactor::One, operation: BlendOperation::Add };
+        // Volumes side by side add up; the composite divides by the summed weight in alpha. A nested
+        // volume is drawn over the coarser ones (premultiplied by its weight).
+        let blend = if key.nested { BlendState::PREMULTIPLIED_ALPHA_BLENDING } else { BlendState { color: add, alpha: add } };
+        self.reconstruct.pipeline(
+            "diffuse_gi_rh_reconstruct_pipeline",
+            &self.shaders.reconstruct,
+            "reconstruct",
+            key.half_resolution,
+            &[&self.sample_layout, &self.lookup_layout],
+            defs,
+            Some(blend),
+        )
     }
 }
 

@@ -6,13 +6,14 @@ use bevy::prelude::*;
 use bevy::render::diagnostic::RecordDiagnostics;
 use bevy::render::render_asset::RenderAssets;
 use bevy::render::render_resource::*;
+use bevy::app::SubApp;
 use bevy::render::renderer::{RenderContext, ViewQuery};
 use bevy::render::texture::GpuImage;
 use bevy::render::view::{ViewUniformOffset, ViewUniforms};
 
 use super::prepare::{RhPipelines, RhVolumesGpu};
 use crate::camera::{GiMethod, GiOutput};
-use crate::composite::{ExtractedDiffuseGi, GiViewTarget};
+use crate::composite::{ExtractedDiffuseGi, GiView, GiViewPassParams};
 use crate::rsm::RsmAtlas;
 
 /// Updates the volumes that need it, once per frame and before any camera renders (the `RenderGraph`
@@ -274,49 +275,103 @@ fn prepare_visibility_masks(state: &mut RhVolumesGpu, pipeline_cache: &PipelineC
 
 /// Reconstructs the indirect light of every volume into the camera's GI target (§5, Eq. 6–7).
 pub(crate) fn reconstruct_gi(
-    view: ViewQuery<(&ExtractedDiffuseGi, &ViewUniformOffset, &ViewPrepassTextures, &GiViewTarget)>,
+    view: ViewQuery<GiView>,
     state: Res<RhVolumesGpu>,
     pipelines: Res<RhPipelines>,
-    pipeline_cache: Res<PipelineCache>,
-    view_uniforms: Res<ViewUniforms>,
+    params: GiViewPassParams,
     mut ctx: RenderContext,
 ) {
-    let (gi, view_offset, prepass, target) = view.into_inner();
+    let view = view.into_inner();
+    let gi = view.gi;
     if gi.0.method != GiMethod::RadianceHints || gi.0.output != GiOutput::Composite {
         return;
     }
+    // Volumes side by side first, then nested ones from coarse to fine, each drawn over the last.
+    let mut order: Vec<&super::prepare::RhVolumeGpu> = state.volumes.iter().collect();
+    order.sort_by(|a, b| a.nested.cmp(&b.nested).then(b.cell_diagonal.total_cmp(&a.cell_diagonal)));
+    let draws: Vec<_> = order
+        .into_iter()
+        .filter_map(|v| {
+            let key = super::prepare::reconstruct_key(v, &gi.0);
+            let pipeline = state.reconstruct_pipelines.get(&key).and_then(|id| params.pipeline_cache.get_render_pipeline(*id))?;
+            let groups = v.bind_groups.as_ref()?;
+            Some((pipeline, groups, v.uniform_offsets[0]))
+        })
+        .collect();
+    if draws.is_empty() {
+        return;
+    }
     let (Some(uniforms), Some(depth), Some(gbuffer)) =
-        (view_uniforms.uniforms.binding(), prepass.depth_view(), prepass.deferred_view())
+        (params.view_uniforms.uniforms.binding(), view.prepass.depth_view(), view.prepass.deferred_view())
     else {
         return;
     };
     let view_group = ctx.render_device().create_bind_group(
         "diffuse_gi_rh_reconstruct_view_bind_group",
-        &pipeline_cache.get_bind_group_layout(&pipelines.reconstruct_view_layout),
+        &params.pipeline_cache.get_bind_group_layout(&pipelines.reconstruct.view_layout),
         &BindGroupEntries::sequential((uniforms, depth, gbuffer)),
     );
     let diagnostics = ctx.diagnostic_recorder();
     let diagnostics = diagnostics.as_deref();
     let span = diagnostics.time_span(ctx.command_encoder(), "diffuse_gi/rh_reconstruct");
     {
-        let mut pass = crate::composite::begin_target_pass(&mut ctx, "diffuse_gi_rh_reconstruct", &target.texture.default_view);
-        // Volumes side by side first, then nested ones from coarse to fine, each drawn over the last.
-        let mut order: Vec<&super::prepare::RhVolumeGpu> = state.volumes.iter().collect();
-        order.sort_by(|a, b| a.nested.cmp(&b.nested).then(b.cell_diagonal.total_cmp(&a.cell_diagonal)));
-        for v in order {
-            let key = super::prepare::reconstruct_key(v, &gi.0);
-            let (Some(pipeline), Some(groups)) = (
-                state.reconstruct_pipelines.get(&key).and_then(|id| pipeline_cache.get_render_pipeline(*id)),
-                v.bind_groups.as_ref(),
-            ) else {
-                continue;
-            };
+        let mut pass = crate::composite::begin_target_pass(&mut ctx, "diffuse_gi_rh_reconstruct", &view.target.texture.default_view);
+        for (pipeline, groups, offset) in draws {
             pass.set_render_pipeline(pipeline);
-            pass.set_bind_group(0, &view_group, &[view_offset.offset]);
-            pass.set_bind_group(1, &groups.sample_result, &[v.uniform_offsets[0]]);
+            pass.set_bind_group(0, &view_group, &[view.view_offset.offset]);
+            pass.set_bind_group(1, &groups.sample_result, &[offset]);
             pass.set_bind_group(2, &groups.lookup, &[]);
             pass.draw(0..3, 0..1);
         }
     }
     span.end(ctx.command_encoder());
+    params.status.drew(GiMethod::RadianceHints);
+}
+
+fn init_rh_pipelines(world: &mut World) {
+    let pipelines = super::prepare::RhPipelines::from_world(world);
+    world.insert_resource(pipelines);
+}
+
+/// Adds the Radiance Hints render-world systems; called from [`super::RadianceHintsPlugin::finish`].
+pub(crate) fn add_render_systems(render_app: &mut SubApp) {
+    use super::{activity, extract, prepare};
+    use bevy::core_pipeline::Core3d;
+    use bevy::core_pipeline::schedule::camera_driver;
+    use bevy::render::renderer::{RenderGraph, RenderGraphSystems};
+    use bevy::render::{ExtractSchedule, Render, RenderStartup, RenderSystems};
+    use crate::composite::GiViewSystems;
+    render_app
+        .init_resource::<extract::ExtractedRhVolumes>()
+        .init_resource::<prepare::RhVolumesGpu>()
+        .init_resource::<SpecializedComputePipelines<prepare::RhPipelines>>()
+        .init_resource::<SpecializedRenderPipelines<prepare::RhPipelines>>()
+        .add_systems(RenderStartup, init_rh_pipelines)
+        .add_systems(ExtractSchedule, extract::extract_volumes)
+        .add_systems(
+            Render,
+            (
+                prepare::prepare_rh_volumes
+                    .in_set(RenderSystems::PrepareResources)
+                    .after(crate::rsm::prepare_rsm),
+                prepare::prepare_rh_bind_groups.in_set(RenderSystems::PrepareBindGroups),
+                activity::map_bounce_counts.in_set(RenderSystems::Cleanup),
+            ),
+        )
+        .add_systems(
+            RenderGraph,
+            update_gi_volumes
+                .in_set(RenderGraphSystems::Render)
+                .after(crate::rsm::draw_rsm)
+                .before(camera_driver),
+        )
+        .add_systems(
+            Core3d,
+            (update_depth_occluded_volumes, reconstruct_gi)
+                .chain()
+                .in_set(GiViewSystems::Produce)
+                .after(crate::composite::clear_gi_target),
+        );
+    #[cfg(feature = "tools")]
+    render_app.add_systems(Render, super::dump::dump_volume.in_set(RenderSystems::Cleanup));
 }

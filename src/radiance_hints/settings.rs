@@ -453,9 +453,8 @@ impl Default for RadianceHintsVolume {
 impl GiSettings for RadianceHintsVolume {
     const NAME: &'static str = "RadianceHintsVolume";
 
-    fn sanitized(&self) -> (Self, Vec<(&'static str, String)>) {
-        let mut s = self.clone();
-        let mut c = Clamped::default();
+    fn clamp(&mut self, c: &mut Clamped) {
+        let s = self;
         let mut r = s.resolution;
         for axis in [&mut r.x, &mut r.y, &mut r.z] {
             *axis = (*axis).clamp(2, 128);
@@ -496,7 +495,6 @@ impl GiSettings for RadianceHintsVolume {
             c.uint(&mut o.samples, 1, 16, "depth_occlusion.samples");
             c.float(&mut o.strength, 0.0, 1.0, 0.5, "depth_occlusion.strength");
         }
-        (s, c.fields)
     }
 }
 

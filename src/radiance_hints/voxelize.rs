@@ -544,13 +544,7 @@ pub fn first_hit(occupancy: &[u32], res: UVec3, a: Vec3, b: Vec3, skip_end: f32)
     if len < 1e-5 {
         return None;
     }
-    let d = delta / len;
-    let mut v = a.floor().as_ivec3();
-    let step = d.signum().as_ivec3();
-    let inv = Vec3::ONE / d.abs().max(Vec3::splat(1e-8));
-    let frac = a - a.floor();
-    let mut t_max = Vec3::select(d.cmplt(Vec3::ZERO), frac, Vec3::ONE - frac) * inv;
-    t_max = Vec3::select(d.abs().cmplt(Vec3::splat(1e-8)), Vec3::splat(3.0e38), t_max);
+    let mut walk = crate::voxels::VoxelWalk::new(a, delta / len);
     let limit = len - skip_end;
     let occupied = |v: bevy::math::IVec3| {
         if v.cmplt(bevy::math::IVec3::ZERO).any() || v.cmpge(res.as_ivec3()).any() {
@@ -560,24 +554,11 @@ pub fn first_hit(occupancy: &[u32], res: UVec3, a: Vec3, b: Vec3, skip_end: f32)
         occupancy[i / 32] & (1 << (i % 32)) != 0
     };
     for _ in 0..(res.x + res.y + res.z + 2) {
-        let t;
-        if t_max.x < t_max.y && t_max.x < t_max.z {
-            t = t_max.x;
-            t_max.x += inv.x;
-            v.x += step.x;
-        } else if t_max.y < t_max.z {
-            t = t_max.y;
-            t_max.y += inv.y;
-            v.y += step.y;
-        } else {
-            t = t_max.z;
-            t_max.z += inv.z;
-            v.z += step.z;
-        }
+        let t = walk.advance();
         if t >= limit {
             return None;
         }
-        if occupied(v) {
+        if occupied(walk.voxel()) {
             return Some(t / len);
         }
     }

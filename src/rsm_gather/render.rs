@@ -1,224 +1,32 @@
 //! Render world: the per-view RSM gather into the frame's indirect-light target.
 
-use bevy::core_pipeline::prepass::ViewPrepassTextures;
-use bevy::core_pipeline::{Core3d, FullscreenShader};
-use bevy::math::Vec4;
-use bevy::platform::collections::HashMap;
 use bevy::prelude::*;
-use bevy::render::render_resource::binding_types::{
-    storage_buffer_read_only, storage_buffer_read_only_sized, texture_2d, texture_2d_array, texture_depth_2d, uniform_buffer,
-};
 use bevy::render::render_resource::*;
-use bevy::render::renderer::{RenderContext, RenderDevice, RenderQueue, ViewQuery};
-use bevy::render::sync_world::RenderEntity;
-use bevy::render::view::{ViewUniform, ViewUniformOffset, ViewUniforms};
-use bevy::render::{Extract, ExtractSchedule, Render, RenderStartup, RenderSystems};
-use bevy::shader::{Shader, ShaderDefVal};
+use bevy::render::renderer::{RenderContext, ViewQuery};
 
-use super::{RsmGatherSettings, RsmSampleWeights};
-use crate::camera::{DiffuseGi, GiMethod};
-use crate::composite::{ExtractedDiffuseGi, GI_TARGET_FORMAT, GiViewSystems, GiViewTarget, clear_gi_target};
-use crate::rsm::{GpuGiLight, RsmAtlas, RsmFaceUniform};
-use crate::settings::GiSettings;
-
-/// The gather shader.
-#[derive(Resource, Clone)]
-pub struct RsmGatherShader(pub Handle<Shader>);
-
-/// The gather's uniform (`RsmGatherUniform` in `shaders/rsm_gather/gather.wgsl`), one per camera.
-#[derive(ShaderType, Clone, Copy, Debug, Default)]
-pub struct RsmGatherUniform {
-    pub samples: u32,
-    pub light_count: u32,
-    pub intensity: f32,
-}
-
-/// One sample of the disk pattern (`RsmGatherSample` in the shader).
-#[derive(ShaderType, Clone, Copy, Debug, Default, PartialEq)]
-pub struct RsmGatherSample {
-    /// xy: offset from the disk's centre in units of the map's side; z: the sample's weight as a
-    /// fraction of the map's area (× resolution² = texels it stands for); w: unused.
-    pub offset_weight: Vec4,
-}
-
-/// The paper's disk pattern (§3.3): `samples` offsets `r_max ξ₁ (sin 2πξ₂, cos 2πξ₂)` with ξ₁
-/// stratified and ξ₂ the base-2 radical inverse, weighted by `ξ₁^k` (k from `weights`) and normalised so
-/// that the weights sum to the disk's area `π r_max²` (in units of the map's area).
-pub fn sample_pattern(samples: u32, radius: f32, weights: RsmSampleWeights) -> Vec<RsmGatherSample> {
-    let n = samples.max(1);
-    let power = weights.power_of_xi1();
-    let xi1: Vec<f32> = (0..n).map(|i| (i as f32 + 0.5) / n as f32).collect();
-    let total: f32 = xi1.iter().map(|x| x.powf(power)).sum();
-    let area = std::f32::consts::PI * radius * radius;
-    (0..n)
-        .map(|i| {
-            let xi2 = (i.reverse_bits() as f64 / 4_294_967_296.0) as f32;
-            let phi = std::f32::consts::TAU * xi2;
-            let x = xi1[i as usize];
-            RsmGatherSample {
-                offset_weight: Vec4::new(radius * x * phi.sin(), radius * x * phi.cos(), area * x.powf(power) / total, 0.0),
-            }
-        })
-        .collect()
-}
-
-/// The camera's [`RsmGatherSettings`] in the render world (sanitised), for cameras using the method.
-#[derive(Component, Clone, Debug, PartialEq)]
-pub struct ExtractedRsmGatherSettings(pub RsmGatherSettings);
-
-fn extract_rsm_gather_cameras(
-    mut commands: Commands,
-    cameras: Extract<Query<(RenderEntity, &DiffuseGi, Option<&RsmGatherSettings>)>>,
-) {
-    for (entity, gi, settings) in &cameras {
-        let Ok(mut entity) = commands.get_entity(entity) else {
-            continue;
-        };
-        if gi.method == GiMethod::RsmGather {
-            entity.insert(ExtractedRsmGatherSettings(settings.cloned().unwrap_or_default().sanitized().0));
-        } else {
-            entity.remove::<ExtractedRsmGatherSettings>();
-        }
-    }
-}
-
-/// Layouts and pipelines of the gather.
-#[derive(Resource)]
-pub struct RsmGatherPipelines {
-    view_layout: BindGroupLayoutDescriptor,
-    gather_layout: BindGroupLayoutDescriptor,
-    shader: Handle<Shader>,
-    fullscreen: VertexState,
-}
-
-impl SpecializedRenderPipeline for RsmGatherPipelines {
-    /// Half resolution.
-    type Key = bool;
-
-    fn specialize(&self, half_resolution: bool) -> RenderPipelineDescriptor {
-        let mut shader_defs = crate::shared_shader_defs();
-        shader_defs.push(ShaderDefVal::Int("GI_SCALE".into(), if half_resolution { 2 } else { 1 }));
-        RenderPipelineDescriptor {
-            label: Some("diffuse_gi_rsm_gather_pipeline".into()),
-            layout: vec![self.view_layout.clone(), self.gather_layout.clone()],
-            vertex: self.fullscreen.clone(),
-            fragment: Some(FragmentState {
-                shader: self.shader.clone(),
-                shader_defs,
-                entry_point: Some("gather".into()),
-                targets: vec![Some(ColorTargetState { format: GI_TARGET_FORMAT, blend: None, write_mask: ColorWrites::ALL })],
-            }),
-            ..default()
-        }
-    }
-}
-
-fn init_rsm_gather_pipelines(world: &mut World) {
-    let unfilterable = TextureSampleType::Float { filterable: false };
-    let view_layout = BindGroupLayoutDescriptor::new(
-        "diffuse_gi_rsm_gather_view_layout",
-        &BindGroupLayoutEntries::sequential(
-            ShaderStages::FRAGMENT,
-            (uniform_buffer::<ViewUniform>(true), texture_depth_2d(), texture_2d(TextureSampleType::Uint)),
-        ),
-    );
-    let gather_layout = BindGroupLayoutDescriptor::new(
-        "diffuse_gi_rsm_gather_layout",
-        &BindGroupLayoutEntries::sequential(
-            ShaderStages::FRAGMENT,
-            (
-                uniform_buffer::<RsmGatherUniform>(true),
-                storage_buffer_read_only_sized(false, None),
-                texture_2d_array(unfilterable),
-                texture_2d_array(unfilterable),
-                texture_2d_array(unfilterable),
-                storage_buffer_read_only::<GpuGiLight>(false),
-                storage_buffer_read_only::<RsmFaceUniform>(false),
-            ),
-        ),
-    );
-    world.insert_resource(RsmGatherPipelines {
-        view_layout,
-        gather_layout,
-        shader: world.resource::<RsmGatherShader>().0.clone(),
-        fullscreen: world.resource::<FullscreenShader>().to_vertex_state(),
-    });
-}
-
-type PatternKey = (u32, u32, RsmSampleWeights);
-
-/// The gather's per-frame state: the uniforms, the sample patterns in use and each camera's offset,
-/// pattern and pipeline.
-#[derive(Resource, Default)]
-pub struct RsmGatherGpu {
-    uniforms: DynamicUniformBuffer<RsmGatherUniform>,
-    /// Patterns by (samples, radius bits, weights), kept while a camera uses them.
-    patterns: HashMap<PatternKey, Buffer>,
-    views: HashMap<Entity, (u32, PatternKey, CachedRenderPipelineId)>,
-}
-
-#[expect(clippy::too_many_arguments, reason = "per-view preparation")]
-fn prepare_rsm_gather(
-    mut gpu: ResMut<RsmGatherGpu>,
-    views: Query<(Entity, &ExtractedDiffuseGi, &ExtractedRsmGatherSettings)>,
-    atlas: Res<RsmAtlas>,
-    pipelines: Res<RsmGatherPipelines>,
-    mut specialized: ResMut<SpecializedRenderPipelines<RsmGatherPipelines>>,
-    pipeline_cache: Res<PipelineCache>,
-    device: Res<RenderDevice>,
-    queue: Res<RenderQueue>,
-) {
-    let gpu = &mut *gpu;
-    gpu.uniforms.clear();
-    gpu.views.clear();
-    let mut used = Vec::new();
-    for (entity, gi, settings) in &views {
-        if gi.0.method != GiMethod::RsmGather {
-            continue;
-        }
-        let s = &settings.0;
-        let key = (s.samples, s.radius.to_bits(), s.weights);
-        used.push(key);
-        gpu.patterns.entry(key).or_insert_with(|| {
-            let mut buffer = StorageBuffer::from(sample_pattern(s.samples, s.radius, s.weights));
-            buffer.set_label(Some("diffuse_gi_rsm_gather_pattern"));
-            buffer.write_buffer(&device, &queue);
-            buffer.buffer().expect("written above").clone()
-        });
-        let offset = gpu.uniforms.push(&RsmGatherUniform {
-            samples: s.samples,
-            light_count: atlas.slots.len() as u32,
-            intensity: s.intensity,
-        });
-        let pipeline = specialized.specialize(&pipeline_cache, &pipelines, gi.0.half_resolution);
-        gpu.views.insert(entity, (offset, key, pipeline));
-    }
-    gpu.patterns.retain(|key, _| used.contains(key));
-    gpu.uniforms.write_buffer(&device, &queue);
-}
+use super::prepare::{RsmGatherGpu, RsmGatherPipelines, init_rsm_gather_pipelines, prepare_rsm_gather};
+use crate::camera::GiMethod;
+use crate::composite::{GiView, GiViewPassParams, add_view_method};
+use crate::rsm::RsmAtlas;
 
 /// The gather of one camera into its indirect-light target.
 fn gather_rsm(
-    view: ViewQuery<(Entity, &ExtractedDiffuseGi, &ViewUniformOffset, &ViewPrepassTextures, &GiViewTarget)>,
+    view: ViewQuery<GiView>,
     gpu: Res<RsmGatherGpu>,
     atlas: Res<RsmAtlas>,
     pipelines: Res<RsmGatherPipelines>,
-    pipeline_cache: Res<PipelineCache>,
-    view_uniforms: Res<ViewUniforms>,
+    params: GiViewPassParams,
     mut ctx: RenderContext,
 ) {
-    let (entity, gi, view_offset, prepass, target) = view.into_inner();
-    if gi.0.method != GiMethod::RsmGather || atlas.slots.is_empty() {
+    let view = view.into_inner();
+    if view.gi.0.method != GiMethod::RsmGather || atlas.slots.is_empty() {
         return;
     }
-    let Some(&(offset, key, pipeline_id)) = gpu.views.get(&entity) else {
+    let Some(&(offset, key, pipeline_id)) = gpu.views.get(&view.entity) else {
         return;
     };
-    let (Some(pipeline), Some(uniforms), Some(depth), Some(gbuffer), Some(gather_uniforms), Some(pattern), Some(lights), Some(faces)) = (
-        pipeline_cache.get_render_pipeline(pipeline_id),
-        view_uniforms.uniforms.binding(),
-        prepass.depth_view(),
-        prepass.deferred_view(),
+    let (Some(pipeline), Some(gather_uniforms), Some(pattern), Some(lights), Some(faces)) = (
+        params.pipeline_cache.get_render_pipeline(pipeline_id),
         gpu.uniforms.binding(),
         gpu.patterns.get(&key),
         atlas.lights.binding(),
@@ -226,15 +34,9 @@ fn gather_rsm(
     ) else {
         return;
     };
-    let device = ctx.render_device().clone();
-    let view_group = device.create_bind_group(
-        "diffuse_gi_rsm_gather_view_bind_group",
-        &pipeline_cache.get_bind_group_layout(&pipelines.view_layout),
-        &BindGroupEntries::sequential((uniforms, depth, gbuffer)),
-    );
-    let gather_group = device.create_bind_group(
+    let gather_group = ctx.render_device().create_bind_group(
         "diffuse_gi_rsm_gather_bind_group",
-        &pipeline_cache.get_bind_group_layout(&pipelines.gather_layout),
+        &params.pipeline_cache.get_bind_group_layout(&pipelines.gather_layout),
         &BindGroupEntries::sequential((
             gather_uniforms,
             pattern.as_entire_binding(),
@@ -245,64 +47,25 @@ fn gather_rsm(
             faces,
         )),
     );
-    crate::composite::draw_into_target(
+    pipelines.pass.draw(
         &mut ctx,
-        "diffuse_gi/rsm_gather",
-        "diffuse_gi_rsm_gather",
-        target,
+        &params,
+        &view,
+        GiMethod::RsmGather,
+        ("diffuse_gi/rsm_gather", "diffuse_gi_rsm_gather"),
         pipeline,
-        &[(&view_group, &[view_offset.offset]), (&gather_group, &[offset])],
+        &[(&gather_group, &[offset])],
+        0..3,
     );
 }
 
 /// Adds the gather's render-world systems; called from [`super::RsmGatherPlugin::finish`].
 pub(crate) fn add_render_systems(render_app: &mut SubApp) {
-    render_app
-        .init_resource::<RsmGatherGpu>()
-        .init_resource::<SpecializedRenderPipelines<RsmGatherPipelines>>()
-        .add_systems(RenderStartup, init_rsm_gather_pipelines)
-        .add_systems(ExtractSchedule, extract_rsm_gather_cameras)
-        .add_systems(Render, prepare_rsm_gather.in_set(RenderSystems::PrepareResources).after(crate::rsm::prepare_rsm))
-        .add_systems(Core3d, gather_rsm.in_set(GiViewSystems::Produce).after(clear_gi_target));
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn the_pattern_lies_in_the_disk_and_weighs_its_area() {
-        for weights in [RsmSampleWeights::Paper, RsmSampleWeights::Density] {
-            for (n, r) in [(1, 0.5), (64, 0.3), (400, 1.0)] {
-                let pattern = sample_pattern(n, r, weights);
-                assert_eq!(pattern.len(), n as usize);
-                let total: f32 = pattern.iter().map(|s| s.offset_weight.z).sum();
-                let area = std::f32::consts::PI * r * r;
-                assert!((total - area).abs() < 1e-4 * area, "{total} vs {area}");
-                for s in &pattern {
-                    assert!(s.offset_weight.truncate().truncate().length() <= r + 1e-6);
-                }
-            }
-        }
-        // Denser near the centre, so outer samples weigh more: ξ₁² for the paper, ξ₁ for the density.
-        let paper = sample_pattern(100, 1.0, RsmSampleWeights::Paper);
-        assert!((paper[99].offset_weight.z / paper[0].offset_weight.z - (199.0f32 / 1.0).powi(2)).abs() < 1.0);
-        let density = sample_pattern(100, 1.0, RsmSampleWeights::Density);
-        assert!((density[99].offset_weight.z / density[0].offset_weight.z - 199.0).abs() < 1e-2);
-    }
-
-    #[test]
-    fn density_weights_integrate_a_falloff_without_bias() {
-        // Σ w f(r) over the pattern against ∫∫ f over the unit disk, for f = 1 − r (far texels count less).
-        let exact = std::f32::consts::PI / 3.0;
-        let estimate = |weights| -> f32 {
-            sample_pattern(4096, 1.0, weights)
-                .iter()
-                .map(|s| s.offset_weight.z * (1.0 - s.offset_weight.truncate().truncate().length()))
-                .sum()
-        };
-        assert!((estimate(RsmSampleWeights::Density) / exact - 1.0).abs() < 0.01);
-        // The paper's ξ₁² over-weights the rim, where this f is small: it underestimates by a third.
-        assert!((estimate(RsmSampleWeights::Paper) / exact - 0.75).abs() < 0.01);
-    }
+    super::extract::add_extract_systems(render_app);
+    add_view_method::<RsmGatherGpu, RsmGatherPipelines, _, _, _>(
+        render_app,
+        init_rsm_gather_pipelines,
+        prepare_rsm_gather.after(crate::rsm::prepare_rsm),
+        gather_rsm,
+    );
 }

@@ -384,6 +384,25 @@ mod tests {
     }
 
     #[test]
+    fn a_bright_top_face_lights_a_floor_as_the_closed_form_of_a_square_overhead() {
+        // Only the +y face (a 2 × 2 square one unit above the point, in cube-map space) shines: a floor
+        // facing up receives the irradiance of a parallel square of that radiance (Howell B-3,
+        // `emitters::parallel_rectangle_irradiance`), a ceiling facing down none, a wall facing +x a
+        // share of it between the two. Independent of the tracer and of every method that reads the sky.
+        let size = 8;
+        let radiance = 5.0;
+        let mut texels = vec![Vec3::ZERO; 6 * size * size];
+        texels[2 * size * size..3 * size * size].fill(Vec3::splat(radiance));
+        let env = Environment::from_faces(size as u32, texels, Quat::IDENTITY).unwrap();
+        let exact = crate::emitters::parallel_rectangle_irradiance(radiance, 1.0, [-1.0, 1.0], [-1.0, 1.0]);
+        let floor = env.irradiance(Vec3::Y, 256).x;
+        assert!((floor / exact - 1.0).abs() < 0.01, "floor {floor} vs closed form {exact}");
+        assert_eq!(env.irradiance(Vec3::NEG_Y, 64), Vec3::ZERO);
+        let wall = env.irradiance(Vec3::X, 256).x;
+        assert!(wall > 0.05 * exact && wall < 0.5 * exact, "wall {wall} vs floor {exact}");
+    }
+
+    #[test]
     fn a_uniform_sky_gives_pi_times_its_radiance() {
         let e = Environment::uniform(Vec3::new(1.0, 2.0, 3.0)).irradiance(Vec3::new(0.3, 0.9, 0.1).normalize(), 16);
         assert!((e - Vec3::new(1.0, 2.0, 3.0) * std::f32::consts::PI).abs().max_element() < 1e-3, "{e}");

@@ -107,6 +107,7 @@ fn inspector_ui(
     pipeline_errors: Option<Res<crate::GiPipelineErrors>>,
     radiosity: Option<Res<RadiosityActivity>>,
     photon_grid: Option<Res<PhotonGridActivity>>,
+    status: Option<Res<crate::method::GiMethodStatus>>,
 ) -> Result {
     let label = |entity: Entity, name: Option<&Name>| name.map_or_else(|| format!("{entity}"), |n| n.to_string());
     let ctx = contexts.ctx_mut()?;
@@ -146,6 +147,9 @@ fn inspector_ui(
                     });
                 ui.checkbox(&mut g.half_resolution, "half resolution (every method)");
                 commit(g, &mut gi);
+                if gi.enabled {
+                    ui.label(status_line(status.as_ref().and_then(|s| s.get(gi.method))));
+                }
                 if gi.method.gathers_rsm_per_pixel() && lights.is_empty() {
                     ui.colored_label(
                         egui::Color32::YELLOW,
@@ -427,7 +431,6 @@ fn radiosity_activity_ui(ui: &mut egui::Ui, a: &RadiosityActivity) {
         "in the background: update {:.1} ms, links {:.1} ms, refine+push {:.1} ms, illumination {:.1} ms ({} bounces)",
         t.update_elements_ms, t.create_links_ms, t.refine_push_ms, t.illumination_ms, t.bounces_run
     ));
-    ui.label(background_line(a.busy, a.frames_since_start, a.solves));
 }
 
 /// The widgets of a camera's [`PhotonGridSettings`]; each range is the field's valid range. ASCII
@@ -465,15 +468,18 @@ fn photon_grid_activity_ui(ui: &mut egui::Ui, a: &PhotonGridActivity) {
         "in the background: voxelize {:.1} ms, photons {:.1} ms, R-grid {:.1} ms, SH field {:.1} ms",
         t.voxelize_ms, t.trace_ms, t.rgrid_ms, t.field_ms
     ));
-    ui.label(background_line(a.busy, a.frames_since_start, a.updates));
 }
 
-/// Where a CPU method's background work stands.
-fn background_line(busy: bool, frames_since_start: u32, done: u64) -> String {
-    if busy {
-        format!("updating in the background ({frames_since_start} frames since the last start); {done} done")
-    } else {
-        format!("current ({done} done in the background)")
+/// Where a camera's method stands, one line of the same shape for the six methods.
+pub fn status_line(status: Option<crate::method::MethodStatus>) -> String {
+    match status {
+        None => "not running yet".into(),
+        Some(s) if !s.ready => "no light yet: pipelines compiling or the first background update running".into(),
+        Some(s) if s.busy => format!(
+            "updating in the background ({} frames since the last start); {} updates done, {} views drawn",
+            s.frames_since_start, s.updates, s.views_drawn
+        ),
+        Some(s) => format!("current: {} background updates, {} views drawn", s.updates, s.views_drawn),
     }
 }
 

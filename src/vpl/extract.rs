@@ -3,7 +3,8 @@
 use std::sync::Arc;
 
 use bevy::prelude::*;
-use bevy::render::Extract;
+use bevy::app::SubApp;
+use bevy::render::{Extract, ExtractSchedule};
 
 use super::{VplSettings, VplVisibility};
 use crate::settings::GiSettings;
@@ -64,6 +65,9 @@ pub struct VplWalks {
     /// The lights' pilot rays (a copy of the caches'), from which the main thread draws the guides
     /// every frame: they follow the cameras.
     pilots: Option<((u64, u64, Vec<Entity>), Arc<Vec<PilotHits>>)>,
+    /// Walks finished, and frames since the last one started (the method's [`MethodStatus`](crate::method::MethodStatus)).
+    finished: u64,
+    frames_since_start: u32,
 }
 
 /// What a walk keeps between runs.
@@ -136,7 +140,7 @@ pub(crate) fn update_vpls(
     snapshot: Option<Res<SceneSnapshot>>,
     cameras: Query<(Entity, &Camera, &DiffuseGi, Option<&VplSettings>, &GlobalTransform)>,
     (gi_lights, emitters): (Query<Entity, With<GiLight>>, Option<Res<EmitterSamples>>),
-    mut cost: ResMut<crate::MainThreadCost>,
+    (mut cost, status): (ResMut<crate::MainThreadCost>, Res<crate::method::GiMethodStatus>),
 ) {
     let start = std::time::Instant::now();
     cost.vpl_ms = 0.0;
@@ -156,6 +160,7 @@ pub(crate) fn update_vpls(
 
     // 1. A finished walk: its VPLs and points replace the set's.
     if let Some((_, walked)) = walks.job.poll() {
+        walks.finished += 1;
         let Walked { caches, vpls, points, maps, ms } = walked;
         if vpls.is_some() || points.is_some() || maps.is_some() {
             set.last_walk_ms = ms;
@@ -210,9 +215,11 @@ pub(crate) fn update_vpls(
         },
         layout: snapshot.layout_generation,
         points: count,
-        maps: (settings.visibility == VplVisibility::Traced).then(|| super::render::ism_side(settings.ism_resolution)),
+        maps: (settings.visibility == VplVisibility::Traced).then(|| super::prepare::ism_side(settings.ism_resolution)),
     };
+    walks.frames_since_start += 1;
     if walks.job.wants(&key) {
+        walks.frames_since_start = 0;
         let mut caches = walks.caches.take().unwrap_or_default();
         let snapshot = snapshot.clone();
         let walk_key = key.clone();
@@ -229,6 +236,7 @@ pub(crate) fn update_vpls(
     }
     set.settings = settings;
     set.busy = !walks.job.is_current(&key);
+    status.set_background(GiMethod::Vpl, !set.vpls.is_empty(), set.busy, walks.frames_since_start, walks.finished);
     cost.vpl_ms = start.elapsed().as_secs_f32() * 1000.0;
 }
 
@@ -287,19 +295,18 @@ fn walk_scene(
 #[derive(Resource, Default, Clone, Debug)]
 pub struct ExtractedVplSet(pub VplSet);
 
-pub(crate) fn extract_vpl_set(set: Extract<Res<VplSet>>, mut extracted: ResMut<ExtractedVplSet>) {
+fn extract_vpl_set(set: Extract<Res<VplSet>>, mut extracted: ResMut<ExtractedVplSet>) {
     if extracted.0.generation != set.generation || extracted.0.points_generation != set.points_generation {
         extracted.0 = set.clone();
     }
 }
 
 /// The camera's [`VplSettings`] in the render world (sanitised), for VPL cameras.
-#[derive(Component, Clone, Debug, PartialEq)]
-pub struct ExtractedVplSettings(pub VplSettings);
+pub type ExtractedVplSettings = crate::method::ExtractedSettings<VplSettings>;
 
 /// Copies each VPL camera's settings into the render world, and asks the frame's SSBC pass for the
 /// compensation (unless the settings or the debug view want the clamped light alone).
-pub(crate) fn extract_vpl_cameras(
+fn extract_vpl_cameras(
     mut commands: Commands,
     cameras: Extract<Query<(bevy::render::sync_world::RenderEntity, &DiffuseGi, Option<&VplSettings>)>>,
     set: Extract<Res<VplSet>>,
@@ -317,7 +324,7 @@ pub(crate) fn extract_vpl_cameras(
         if wanted {
             entity.insert(SsbcRequest {
                 steps: s.ssbc_steps,
-                bound: super::render::effective_bound(s.geometry_bound, set.automatic_bound),
+                bound: super::prepare::effective_bound(s.geometry_bound, set.automatic_bound),
                 solid_angle: s.ssbc_solid_angle,
                 discontinuity_solid_angle: s.ssbc_discontinuity_solid_angle,
                 levels: s.ssbc_levels,
@@ -328,6 +335,19 @@ pub(crate) fn extract_vpl_cameras(
         } else {
             entity.remove::<SsbcRequest>();
         }
-        entity.insert(ExtractedVplSettings(s));
+        entity.insert(crate::method::ExtractedSettings(s));
     }
+}
+
+/// The main-world systems: the walks, after the snapshot and the emitter samples they read.
+pub(super) fn add_main_systems(app: &mut App) {
+    app.init_resource::<VplSet>().init_resource::<VplWalks>().add_systems(
+        PostUpdate,
+        update_vpls.after(crate::scene::SceneSnapshotSystems::Update).after(crate::emitters::update_emitters),
+    );
+}
+
+/// The extraction of the set and of each VPL camera's settings.
+pub(super) fn add_extract_systems(render_app: &mut SubApp) {
+    render_app.add_systems(ExtractSchedule, (extract_vpl_set, extract_vpl_cameras));
 }

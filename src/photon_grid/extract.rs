@@ -1,0 +1,288 @@
+//! Main world: the background preparation (V-grid, photons, R-grid, SH field) of the photon grid and the
+//! field it hands the frame, extracted to the render world as [`PhotonGridOutput`].
+
+use std::sync::Arc;
+
+use bevy::diagnostic::DiagnosticPath;
+use bevy::prelude::*;
+use bevy::render::extract_resource::ExtractResource;
+
+use super::PhotonGridSettings;
+use super::grid::{self, FieldParams, GridLayout, PhotonStats, RGrid, ShField, TraceParams, VGrid};
+use super::prepare::PhotonGridUniform;
+use crate::background::{self, Blend, CpuJob, CpuMethodParams, JobKey, MethodUse};
+use crate::camera::GiMethod;
+use crate::scene::SceneSnapshot;
+
+/// The field the frame gathers from. Extracted to the render world.
+#[derive(Resource, Clone, Debug, Default, ExtractResource)]
+pub struct PhotonGridOutput {
+    /// Bumped whenever the field changes.
+    pub generation: u64,
+    pub grid: PhotonGridUniform,
+    /// Per SH cell: its probe, or `u32::MAX`.
+    pub cell_probe: Arc<Vec<u32>>,
+    /// Nine `vec4`s per probe: radiance SH (rgb, cd/m² before exposure) and distance SH (a, metres).
+    pub coefficients: Arc<Vec<Vec4>>,
+    /// The V-grid's boundary cells, a bit each ([`VGrid::occupancy_words`]): the gather's visibility.
+    pub occupancy: Arc<Vec<u32>>,
+}
+
+/// Milliseconds of the preparation's stages in the background task (the paper's Table 1 rows).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PhotonGridTimes {
+    pub voxelize_ms: f32,
+    pub trace_ms: f32,
+    pub rgrid_ms: f32,
+    pub field_ms: f32,
+}
+
+/// What the last update did, for the panel, the tools and the tests.
+#[derive(Resource, Clone, Debug, Default, PartialEq)]
+pub struct PhotonGridActivity {
+    /// SH cells per axis.
+    pub dims: UVec3,
+    /// Boundary V-cells and SH cells.
+    pub boundary_v_cells: usize,
+    pub boundary_sh_cells: usize,
+    /// Probes of the field, and those dropped inside solid geometry.
+    pub probes: usize,
+    pub inside: u32,
+    /// The photon list and where the flux went.
+    pub photons: usize,
+    pub stats: PhotonStats,
+    /// The stages of the last update, ms (zero for one that did not run).
+    pub times: PhotonGridTimes,
+    /// Preparations finished so far (background tasks). A change of a gather-only setting
+    /// (`intensity`, `r_max`, `gather_samples`, `obscurance_distance`) runs none.
+    pub updates: u64,
+    /// Whether the field shown is not yet the one of the scene as it is now: a preparation is running
+    /// or due, or a new field is still being blended in.
+    pub busy: bool,
+    /// Whether a result is drawn: false from the method's activation until its first background
+    /// result arrives (the frame shows no bounced light from it until then).
+    pub ready: bool,
+    /// Frames since the last preparation was started from the scene as it was then.
+    pub frames_since_start: u32,
+}
+
+/// The grids the preparation keeps between runs: the state a background preparation takes and hands
+/// back.
+#[derive(Default)]
+pub struct PhotonGridCore {
+    pub vgrid: VGrid,
+    voxels_key: Option<(u64, u32)>,
+}
+
+/// The main-world state: the grids (in a background task while one runs), the running preparation and
+/// the field shown.
+#[derive(Resource, Default)]
+pub struct PhotonGridState {
+    job: CpuJob<PhotonGridSettings, PhotonGridCore, Prepared>,
+    shown: Option<ShownField>,
+}
+
+/// Everything the preparation depends on: the scene and the settings it reads (not the gather-only
+/// ones).
+type FieldKey = JobKey<PhotonGridSettings>;
+
+/// What a background preparation hands back (its grids go back to the state).
+struct Prepared {
+    /// `None` for an empty scene.
+    field: Option<(GridLayout, ShField)>,
+    occupancy: Arc<Vec<u32>>,
+    activity: PhotonGridActivity,
+}
+
+/// The field drawn, blending from the previous one.
+struct ShownField {
+    layout: GridLayout,
+    cell_probe: Arc<Vec<u32>>,
+    occupancy: Arc<Vec<u32>>,
+    /// Nine coefficients per probe: where the blend starts (the previous field at the same cells) and
+    /// where it ends.
+    from: Vec<Vec4>,
+    to: Vec<Vec4>,
+    blend: Blend,
+    /// The gather settings last drawn with.
+    drawn: Option<PhotonGridSettings>,
+}
+
+/// Distances of the SH distance field are clamped to this many SH cells: the gather's visibility only
+/// needs what lies within its reach, and a far distance (a ray into the sky) blurs into the near ones.
+pub const DISTANCE_CELLS: f32 = 4.0;
+
+pub const DIAGNOSTIC_VOXELIZE: DiagnosticPath = DiagnosticPath::const_new("diffuse_gi/photon_voxelize");
+pub const DIAGNOSTIC_TRACE: DiagnosticPath = DiagnosticPath::const_new("diffuse_gi/photon_trace");
+pub const DIAGNOSTIC_RGRID: DiagnosticPath = DiagnosticPath::const_new("diffuse_gi/photon_rgrid");
+pub const DIAGNOSTIC_FIELD: DiagnosticPath = DiagnosticPath::const_new("diffuse_gi/photon_field");
+
+/// Keeps the field current for the first active photon-grid camera, without waiting for it: takes a
+/// finished background preparation (V-grid when geometry changed; photons, R-grid and SH field), starts
+/// the next when the scene or a preparation setting changed since the last one began, and writes the
+/// output (blending a new field in; gather-only settings are applied here, with no preparation).
+pub(super) fn update_photon_grid(
+    mut params: CpuMethodParams<PhotonGridSettings>,
+    mut state: ResMut<PhotonGridState>,
+    mut output: ResMut<PhotonGridOutput>,
+    mut activity: ResMut<PhotonGridActivity>,
+) {
+    params.cost.photon_grid_ms = 0.0;
+    let (settings, scene) = match params.method_use(GiMethod::PhotonGrid) {
+        MethodUse::On { settings, scene } => (settings, scene),
+        MethodUse::Waiting => return,
+        MethodUse::Off => {
+            if state.shown.take().is_some() || state.job.is_active() {
+                state.job.reset();
+                *output = PhotonGridOutput { generation: output.generation + 1, ..default() };
+                (activity.busy, activity.ready) = (false, false);
+            }
+            return;
+        }
+    };
+    let frame_start = std::time::Instant::now();
+    let snapshot = params.snapshot.as_deref().expect("a method in use has a snapshot");
+    let key = FieldKey { scene, settings: settings.preparation() };
+    let state = &mut *state;
+
+    // 1. A finished preparation: its grids come back, its field is blended in.
+    if let Some(prepared) = state.job.poll() {
+        let Prepared { field, occupancy, activity: done } = prepared;
+        let t = done.times;
+        background::record_stages(
+            &mut params.diagnostics,
+            &[(&DIAGNOSTIC_VOXELIZE, t.voxelize_ms), (&DIAGNOSTIC_TRACE, t.trace_ms), (&DIAGNOSTIC_RGRID, t.rgrid_ms), (&DIAGNOSTIC_FIELD, t.field_ms)],
+        );
+        *activity = PhotonGridActivity { updates: activity.updates + 1, frames_since_start: activity.frames_since_start, ..done };
+        state.shown = field.map(|(layout, field)| ShownField::after(state.shown.take(), layout, field, occupancy));
+        if state.shown.is_none() {
+            let generation = output.generation + 1;
+            *output = PhotonGridOutput { generation, ..default() };
+        }
+    }
+
+    // 2. The scene or a preparation setting changed since the last preparation began: start the next.
+    if state.job.wants(&key) {
+        let snapshot = snapshot.clone();
+        state.job.start(&key, move |core, key| prepare(core, &snapshot, key));
+        activity.frames_since_start = 0;
+    } else {
+        activity.frames_since_start += 1;
+    }
+
+    // 3. Write the output when the field, the blend or a gather setting changed.
+    if let Some(shown) = &mut state.shown {
+        let weight = shown.blend.advance();
+        if weight.is_some() || shown.drawn.as_ref() != Some(&settings) {
+            shown.drawn = Some(settings.clone());
+            let layout = shown.layout;
+            let coefficients = shown.current();
+            let generation = output.generation + 1;
+            *output = PhotonGridOutput {
+                generation,
+                grid: PhotonGridUniform {
+                    origin: layout.origin,
+                    cell_size: layout.cell,
+                    dims: layout.dims,
+                    r_max: settings.r_max * layout.cell,
+                    intensity: settings.intensity,
+                    gather_samples: settings.gather_samples,
+                    obscurance_distance: settings.obscurance_distance,
+                    probes: (coefficients.len() / 9) as u32,
+                },
+                cell_probe: shown.cell_probe.clone(),
+                coefficients: Arc::new(coefficients),
+                occupancy: shown.occupancy.clone(),
+            };
+        }
+    }
+    activity.busy = state.job.is_stale(&key) || state.shown.as_ref().is_some_and(|s| !s.blend.is_done());
+    activity.ready = state.shown.is_some();
+    params.status.set_background(GiMethod::PhotonGrid, activity.ready, activity.busy, activity.frames_since_start, activity.updates);
+    params.cost.photon_grid_ms = frame_start.elapsed().as_secs_f32() * 1e3;
+}
+
+impl ShownField {
+    /// The new field, blending from `previous` at the cells both have a probe in (same grid only).
+    fn after(previous: Option<Self>, layout: GridLayout, field: ShField, occupancy: Arc<Vec<u32>>) -> Self {
+        let to: Vec<Vec4> = field.coefficients.iter().flatten().copied().collect();
+        let previous = previous.filter(|p| p.layout == layout && p.cell_probe.len() == field.cell_probe.len());
+        let (from, blend) = match previous {
+            Some(previous) => {
+                let old = previous.current();
+                let mut from = to.clone();
+                for (&new, &was) in field.cell_probe.iter().zip(previous.cell_probe.iter()) {
+                    if new != u32::MAX && was != u32::MAX {
+                        let (new, was) = (new as usize * 9, was as usize * 9);
+                        from[new..new + 9].copy_from_slice(&old[was..was + 9]);
+                    }
+                }
+                (from, Blend::start())
+            }
+            None => (to.clone(), Blend::DONE),
+        };
+        Self { layout, cell_probe: Arc::new(field.cell_probe), occupancy, from, to, blend, drawn: None }
+    }
+
+    /// The coefficients on screen now.
+    fn current(&self) -> Vec<Vec4> {
+        self.blend.mix(&self.from, &self.to, Vec4::lerp)
+    }
+}
+
+/// One preparation, on a background task: the V-grid (only when geometry or the resolution changed
+/// since `core` was built), photons, R-grid and SH field.
+fn prepare(core: &mut PhotonGridCore, snapshot: &SceneSnapshot, key: &FieldKey) -> Prepared {
+    let settings = &key.settings;
+    let exposure = key.scene.exposure();
+    let mut times = PhotonGridTimes::default();
+    let Some((lo, hi)) = snapshot.bounds() else {
+        return Prepared { field: None, occupancy: Arc::default(), activity: PhotonGridActivity::default() };
+    };
+    let layout = GridLayout::fit(lo, hi, settings.resolution);
+
+    // 1. V-grid and SH-grid, when geometry or the resolution changed.
+    let voxels_key = Some((snapshot.geometry_generation, settings.resolution));
+    if core.voxels_key != voxels_key || core.vgrid.layout != Some(layout) {
+        let start = std::time::Instant::now();
+        core.vgrid = VGrid::build(snapshot, layout);
+        core.voxels_key = voxels_key;
+        times.voxelize_ms = start.elapsed().as_secs_f32() * 1e3;
+    }
+
+    // 2. Photons.
+    let start = std::time::Instant::now();
+    let gi_lights: Vec<_> = snapshot.lights.iter().filter(|l| key.scene.gi_lights.contains(&l.entity)).map(|l| l.light).collect();
+    let params = TraceParams { photons: settings.photons, max_reflections: settings.max_reflections, seed: 0x9e37_79b9, exposure };
+    let (photons, stats) = grid::trace_photons(snapshot, &gi_lights, snapshot.environment.as_deref(), &core.vgrid, &params);
+    times.trace_ms = start.elapsed().as_secs_f32() * 1e3;
+
+    // 3. R-grid.
+    let start = std::time::Instant::now();
+    let base = grid::accumulate_sorted(&photons, layout.cell_count());
+    let rgrid = RGrid::new(layout, base, 6);
+    times.rgrid_ms = start.elapsed().as_secs_f32() * 1e3;
+
+    // 4. SH field.
+    let start = std::time::Instant::now();
+    let field_params = FieldParams {
+        directions: settings.sh_directions,
+        max_distance: DISTANCE_CELLS * layout.cell,
+        filter_levels: settings.filter_levels,
+    };
+    let field = ShField::build(&core.vgrid, &rgrid, snapshot.environment.as_deref(), &field_params);
+    times.field_ms = start.elapsed().as_secs_f32() * 1e3;
+
+    let activity = PhotonGridActivity {
+        dims: layout.dims,
+        boundary_v_cells: core.vgrid.boundary_cells(),
+        boundary_sh_cells: core.vgrid.sh_boundary.iter().filter(|b| **b).count(),
+        probes: field.coefficients.len(),
+        inside: field.inside,
+        photons: photons.len(),
+        stats,
+        times,
+        ..default()
+    };
+    Prepared { field: Some((layout, field)), occupancy: Arc::new(core.vgrid.occupancy_words()), activity }
+}
