@@ -22,12 +22,16 @@
 //! ```
 //!
 //! Modules: [`composite`] (the GI frame every method shares: the per-view indirect-light target, the
-//! composite into the image, debug views), the methods [`radiance_hints`], [`vpl`] (with the
-//! screen-space bias compensation of [`ssbc`]), the one-bounce gathers [`rsm_gather`] and [`drm`], and
-//! [`radiosity`] (implicit-visibility hierarchical radiosity, which needs no RSM) and [`photon_grid`]
-//! (the photon grid and SH field), their shared inputs [`rsm`] (reflective shadow maps) and
-//! [`background`] (the CPU methods' work off the main thread), the settings helpers of [`settings`],
-//! [`camera`] and [`light`] (the user's components), [`ui`] (the egui panel, feature `egui`). The measuring instruments: [`scene`] (CPU snapshot of the world), [`reference`](mod@reference)
+//! composite into the image, debug views, the per-view pass every method draws with), the methods
+//! [`radiance_hints`], [`vpl`] (with the screen-space bias compensation of [`ssbc`]), the one-bounce
+//! gathers [`rsm_gather`] and [`drm`], and [`radiosity`] (implicit-visibility hierarchical radiosity,
+//! which needs no RSM) and [`photon_grid`] (the photon grid and SH field), each of the same shape
+//! ([`method`] lists its files); their shared inputs [`rsm`] (reflective shadow maps), [`emitters`]
+//! (samples of the emissive surfaces), [`voxels`] (the voxel walk) and [`background`] (the CPU methods'
+//! work off the main thread); [`method`] (what every method module shares: the GPU capability check,
+//! the settings' registration, the status every method reports), the settings helpers of [`settings`],
+//! [`camera`] and [`light`] (the user's components), [`ui`] (the egui panel, feature `egui`). The
+//! measuring instruments: [`scene`] (CPU snapshot of the world), [`reference`](mod@reference)
 //! (path-traced ground truth), [`metrics`] (errors), [`scenes`] (standard scenes), and with the feature
 //! `tools`, `headless` (the headless renderer and its command line).
 
