@@ -199,6 +199,15 @@ impl GiMethodStatus {
         }
     }
 
+    /// Sets whether a GPU method's background work (Radiance Hints' voxelisations) runs, keeping what
+    /// the render world said (ready, views drawn).
+    pub fn set_busy(&self, method: GiMethod, busy: bool, frames_since_start: u32, updates: u64) {
+        if let Ok(mut map) = self.0.lock() {
+            let status = map.entry(method).or_default();
+            (status.busy, status.frames_since_start, status.updates) = (busy, frames_since_start, updates);
+        }
+    }
+
     /// Forgets `method` (no camera uses it any more).
     pub fn clear(&self, method: GiMethod) {
         if let Ok(mut map) = self.0.lock() {

@@ -133,3 +133,83 @@ fn radiosity_follows_a_moving_mesh_without_stalling() {
 fn the_photon_grid_follows_a_moving_mesh_without_stalling() {
     follows_a_moving_mesh(GiMethod::PhotonGrid);
 }
+
+/// Radiance Hints with little noise between runs (as `gpu_radiance_hints`' scroll test): what is left
+/// between two runs is what the test looks at.
+fn quiet_volume(resolution: UVec3) -> bevy_diffuse_gi::radiance_hints::RadianceHintsVolume {
+    use bevy_diffuse_gi::radiance_hints::{GridSizing, RadianceHintsVolume};
+    RadianceHintsVolume { sizing: GridSizing::Fixed, resolution, rsm_samples: 128, secondary_samples: 32, jitter: 0.0, ..Default::default() }
+}
+
+/// The resolution the volume starts with, and the one it is given at rendering frame [`RESIZE_AT`]: a
+/// full voxelisation of `cornell` at 16³ hints (validity rays from every hint, 64³ occupancy voxels)
+/// takes longer than [`MAX_MAIN_THREAD_MS`] on the main thread.
+const BEFORE_RESIZE: UVec3 = UVec3::splat(8);
+const AFTER_RESIZE: UVec3 = UVec3::splat(16);
+const RESIZE_AT: u32 = 4;
+
+/// Largest block relative RMSE between the resized volume's image (after its background voxelisation
+/// and refinement) and a volume of the new resolution from the start: measured 0.012 (the two
+/// resolutions are 0.098 apart).
+const RESIZED_MAX_ERROR: f64 = 0.04;
+
+fn cornell_rh(resolution: UVec3, frames: u32) -> HeadlessOptions {
+    HeadlessOptions {
+        method: HeadlessMethod::Gi(GiMethod::RadianceHints),
+        indirect_only: true,
+        size: UVec2::splat(64),
+        frames,
+        wait_background: Some(WAIT_BACKGROUND_S),
+        rh: quiet_volume(resolution),
+        ..Default::default()
+    }
+}
+
+#[test]
+fn a_radiance_hints_volume_given_a_new_resolution_is_voxelised_off_the_main_thread() {
+    use bevy_diffuse_gi::headless::HeadlessClock;
+    use bevy_diffuse_gi::radiance_hints::RadianceHintsVolume;
+    let test = "motion_rh_resize";
+    let resized = {
+        let _guard = common::render_lock();
+        bevy_diffuse_gi::headless::run_with(&cornell_rh(BEFORE_RESIZE, 40), |app| {
+            app.add_systems(Update, |clock: Res<HeadlessClock>, mut volumes: Query<&mut RadianceHintsVolume>| {
+                if clock.rendering && clock.frame == RESIZE_AT {
+                    for mut volume in &mut volumes {
+                        volume.resolution = AFTER_RESIZE;
+                    }
+                }
+            });
+        })
+        .unwrap_or_else(|e| panic!("headless render failed: {e}"))
+    };
+    let fine = render(&cornell_rh(AFTER_RESIZE, 40)).image;
+    let coarse = render(&cornell_rh(BEFORE_RESIZE, 40)).image;
+    let costs = main_thread_ms(&resized);
+    let worst = costs.iter().copied().fold(0.0, f64::max);
+    let error = metrics::compare(&resized.image, &fine).expect("same size").block_relative_rmse;
+    let coarse_error = metrics::compare(&coarse, &fine).expect("same size").block_relative_rmse;
+    eprintln!(
+        "{test}: main thread worst {worst:.2} ms over {} frames; resized vs {}³ from the start {error:.4}, {}³ vs {}³ {coarse_error:.4}",
+        costs.len(),
+        AFTER_RESIZE.x,
+        BEFORE_RESIZE.x,
+        AFTER_RESIZE.x
+    );
+    check(test, !resized.image.has_non_finite(), &resized.image, None, "NaN or Inf in the image".into());
+    check(
+        test,
+        worst <= MAX_MAIN_THREAD_MS,
+        &resized.image,
+        None,
+        format!("a frame cost the main thread {worst:.1} ms (> {MAX_MAIN_THREAD_MS} ms); per frame: {costs:?}"),
+    );
+    check(test, coarse_error > 2.0 * RESIZED_MAX_ERROR, &coarse, Some(&fine), format!("the resolutions differ by only {coarse_error:.4}"));
+    check(
+        test,
+        error <= RESIZED_MAX_ERROR,
+        &resized.image,
+        Some(&fine),
+        format!("the resized volume is {error:.4} from one of its new resolution (bound {RESIZED_MAX_ERROR}): its voxels never arrived?"),
+    );
+}

@@ -307,7 +307,9 @@ fn the_default_volume_is_right_in_the_large_standard_scenes() {
 const MEASURED_SPONZA: (f64, f64, f64) = (0.176, 1.006, 0.003);
 const MEASURED_CELLAR: (f64, f64, f64) = (0.200, 0.923, 0.004);
 /// 0.65 m cells over the 60 m field (the default's budget of 2¹⁷ hints); the issue's target is ≤ 0.30.
-const MEASURED_FIELD: (f64, f64, f64) = (0.297, 0.968, 0.042);
+/// Measured 0.327 / 0.996 / 0.051 since the volume's first voxels arrive from the background (the
+/// benchmark's 16 frames: 0.320 / 0.993 / 0.049; 0.297 / 0.968 / 0.042 before issue #32's changes).
+const MEASURED_FIELD: (f64, f64, f64) = (0.327, 0.996, 0.051);
 const MEASURED_POINT: (f64, f64, f64) = (0.112, 1.051, 0.003);
 const MEASURED_PANEL: (f64, f64, f64) = (0.299, 1.115, 0.118);
 

@@ -7,7 +7,7 @@ use bevy::render::render_resource::ShaderType;
 use bevy::render::render_resource::encase::private::StructMetadata;
 use bevy_diffuse_gi::drm::{DrmFaceJob, DrmGatherUniform, DrmPhoton, DrmPhotonsUniform};
 use bevy_diffuse_gi::emitters::GpuEmitter;
-use bevy_diffuse_gi::radiance_hints::prepare::{RhVolumeUniform, VisibilityRegion};
+use bevy_diffuse_gi::radiance_hints::{RhVolumeUniform, VisibilityRegion};
 use bevy_diffuse_gi::photon_grid::PhotonGridUniform;
 use bevy_diffuse_gi::radiosity::RadiosityVertex;
 use bevy_diffuse_gi::rsm::{GpuGiLight, RsmFaceUniform};

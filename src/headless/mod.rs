@@ -492,7 +492,7 @@ fn drive(
     (device, warnings, rh_volumes): (
         Option<Res<bevy::render::renderer::RenderDevice>>,
         Option<Res<crate::DiffuseGiWarnings>>,
-        Query<(&GlobalTransform, Option<&crate::radiance_hints::extract::RhMeanChord>), With<RadianceHintsVolume>>,
+        Query<(&GlobalTransform, Option<&crate::radiance_hints::RhMeanChord>), With<RadianceHintsVolume>>,
     ),
 ) {
     // The volume as it runs now (a scene scaled after it spawned moved and resized it).

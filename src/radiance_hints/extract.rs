@@ -150,18 +150,81 @@ pub(crate) fn ensure_snapshot(
     }
 }
 
-/// Re-voxelises every volume whose geometry, transform or resolution changed.
+/// What a volume's voxels were made from: the snapshot's geometry generation, the volume's transform
+/// (bits) and its hint resolution.
+type VoxelKey = (u64, [u32; 16], UVec3);
+
+/// Recent geometry changes of the snapshot, by generation: the boxes each commit changed. Voxels made a
+/// few generations ago (a background voxelisation finishes while the scene moves on) are brought up to
+/// date from the boxes in between, in proportion to what changed, instead of being voxelised again.
+#[derive(Resource, Default)]
+pub struct RhVoxelChanges {
+    by_generation: std::collections::VecDeque<(u64, Vec<(Vec3, Vec3)>)>,
+}
+
+/// Generations [`RhVoxelChanges`] keeps: 17 s of continuous change at 60 frames a second (a background
+/// voxelisation that takes longer than that under continuous change is started again).
+const KEPT_CHANGES: usize = 1024;
+
+impl RhVoxelChanges {
+    fn record(&mut self, snapshot: &SceneSnapshot) {
+        let generation = snapshot.geometry_generation;
+        if self.by_generation.back().is_some_and(|(g, _)| *g == generation) {
+            return;
+        }
+        self.by_generation.push_back((generation, snapshot.last_change.dirty.clone()));
+        while self.by_generation.len() > KEPT_CHANGES {
+            self.by_generation.pop_front();
+        }
+    }
+
+    /// Every box changed after generation `from` up to `to`, or `None` when a generation in between
+    /// is not kept.
+    fn since(&self, from: u64, to: u64) -> Option<Vec<(Vec3, Vec3)>> {
+        let mut boxes = Vec::new();
+        let mut seen = 0;
+        for (_, dirty) in self.by_generation.iter().filter(|(g, _)| *g > from && *g <= to) {
+            boxes.extend_from_slice(dirty);
+            seen += 1;
+        }
+        (seen == to - from).then_some(boxes)
+    }
+}
+
+/// The volumes' full voxelisations running in the background (a first one, a new resolution, a move
+/// that is not by whole cells): tens of milliseconds to seconds, which a frame must not wait for.
+#[derive(Resource, Default)]
+pub struct RhVoxelJobs {
+    jobs: bevy::platform::collections::HashMap<Entity, crate::background::BackgroundJob<VoxelKey, GeometryVoxels>>,
+    /// Full voxelisations finished, and frames since the last one started.
+    finished: u64,
+    frames_since_start: u32,
+}
+
+/// Keeps every volume's voxels current without waiting for a full voxelisation: a geometry change
+/// re-voxelises the cells it touched (on the main thread, in proportion to the change), a move by whole
+/// cells scrolls (voxelising the slab that came in); anything else (the first voxels, a new resolution,
+/// another move) is voxelised in the background, the volume keeping its previous voxels, transform and
+/// resolution meanwhile ([`extract_volumes`]).
 pub(crate) fn update_geometry_voxels(
     mut commands: Commands,
     snapshot: Option<Res<SceneSnapshot>>,
     volumes: Query<(Entity, &RadianceHintsVolume, &GlobalTransform, Option<&RhGeometryVoxels>, Option<&RhMeanChord>)>,
+    cameras: Query<(&Camera, &DiffuseGi)>,
+    (mut changes, mut jobs): (ResMut<RhVoxelChanges>, ResMut<RhVoxelJobs>),
     mut cost: ResMut<crate::MainThreadCost>,
+    status: Res<crate::method::GiMethodStatus>,
 ) {
     let start = std::time::Instant::now();
     let Some(snapshot) = snapshot else {
         return;
     };
+    changes.record(&snapshot);
+    let jobs = &mut *jobs;
+    jobs.jobs.retain(|entity, _| volumes.contains(*entity));
+    jobs.frames_since_start += 1;
     let mut worked = false;
+    let mut busy = false;
     for (entity, volume, transform, voxels, last_chord) in &volumes {
         let matrix = volume_matrix(transform);
         // Only an adaptive grid follows the scene's chord.
@@ -171,37 +234,69 @@ pub(crate) fn update_geometry_voxels(
             commands.entity(entity).insert(chord);
         }
         let settings = volume.effective(matrix, chord.and_then(|c| c.metres));
-        let key = (
-            snapshot.geometry_generation,
-            matrix.to_cols_array().map(f32::to_bits),
-            settings.resolution,
-        );
+        let key: VoxelKey = (snapshot.geometry_generation, matrix.to_cols_array().map(f32::to_bits), settings.resolution);
+        let job = jobs.jobs.entry(entity).or_default();
+        // A finished full voxelisation is the newest base; the volume's own voxels otherwise.
+        let finished = job.poll();
+        jobs.finished += finished.is_some() as u64;
         if voxels.is_some_and(|v| v.key == key) {
+            // Current already (a result that arrives late is dropped).
             continue;
         }
-        // The same volume one geometry change later: redo only the cells the change touched. The same
-        // volume moved by whole cells (a cascade level following its camera): scroll, voxelising only
-        // the slab that came in.
-        let data = match voxels {
-            Some(v) if v.key.1 == key.1 && v.key.2 == key.2 && v.key.0 + 1 == key.0 => {
-                voxelize_update(&snapshot, matrix, settings.resolution, &v.data, &snapshot.last_change.dirty)
+        let from_job = finished.is_some();
+        let base = finished.map(|(k, data)| (k, Arc::new(data))).or_else(|| voxels.map(|v| (v.key, v.data.clone())));
+        // From the base to the scene as it is: the same volume some geometry changes later is updated in
+        // the cells those changes touched; the same volume moved by whole cells (a cascade level
+        // following its camera) scrolls, voxelising only the slab that came in.
+        let brought = base.as_ref().and_then(|(k, d)| {
+            if *k == key {
+                return Some((**d).clone());
             }
-            Some(v) if v.key.0 == key.0 && v.key.2 == key.2 => {
-                let old = Mat4::from_cols_array(&v.key.1.map(f32::from_bits));
-                super::voxelize::scroll_shift(old, matrix, settings.resolution)
-                    .and_then(|shift| super::voxelize::voxelize_scrolled(&snapshot, matrix, settings.resolution, &v.data, shift))
-                    .unwrap_or_else(|| voxelize(&snapshot, matrix, settings.resolution))
+            if k.1 == key.1 && k.2 == key.2 && k.0 < key.0 {
+                let dirty = changes.since(k.0, key.0)?;
+                return Some(voxelize_update(&snapshot, matrix, settings.resolution, d, &dirty));
             }
-            _ => voxelize(&snapshot, matrix, settings.resolution),
+            if k.0 == key.0 && k.2 == key.2 {
+                let old = Mat4::from_cols_array(&k.1.map(f32::from_bits));
+                let shift = super::voxelize::scroll_shift(old, matrix, settings.resolution)?;
+                return super::voxelize::voxelize_scrolled(&snapshot, matrix, settings.resolution, d, shift);
+            }
+            None
+        });
+        let (inserted_key, mut data) = match (brought, base) {
+            (Some(data), _) => (key, data),
+            // Nothing to bring up to date from: voxelise it all in the background (once the running
+            // one, if any, has finished); the volume keeps what it has meanwhile.
+            (None, base) => {
+                busy = true;
+                if job.wants(&key) {
+                    let snapshot = snapshot.clone();
+                    let resolution = settings.resolution;
+                    job.start(key, move || voxelize(&snapshot, matrix, resolution));
+                    jobs.frames_since_start = 0;
+                }
+                match base.filter(|_| from_job) {
+                    Some((k, data)) => (k, (*data).clone()),
+                    None => continue,
+                }
+            }
         };
+        // The render world has not seen a background result: its voxels are new everywhere.
+        if from_job {
+            data.changed = super::voxelize::VoxelChange::All;
+        }
         worked = true;
         commands.entity(entity).insert(RhGeometryVoxels {
             generation: voxels.map_or(1, |v| v.generation + 1),
-            key,
+            key: inserted_key,
             data: Arc::new(data),
         });
     }
     cost.voxels_ms = if worked { start.elapsed().as_secs_f32() * 1000.0 } else { 0.0 };
+    let used = cameras.iter().any(|(c, gi)| c.is_active && gi.enabled && gi.method == GiMethod::RadianceHints);
+    if used {
+        status.set_busy(GiMethod::RadianceHints, busy, jobs.frames_since_start, jobs.finished);
+    }
 }
 
 /// Creates (or removes) the IrradianceVolume probes of every volume, depending on whether an active
@@ -209,7 +304,7 @@ pub(crate) fn update_geometry_voxels(
 pub(crate) fn manage_irradiance_exports(
     mut commands: Commands,
     cameras: Query<(&Camera, &DiffuseGi)>,
-    volumes: Query<(Entity, &RadianceHintsVolume, &GlobalTransform, Option<&RhIrradianceExport>, Option<&RhMeanChord>)>,
+    volumes: Query<(Entity, &RadianceHintsVolume, &GlobalTransform, Option<&RhIrradianceExport>, Option<&RhMeanChord>, Option<&RhGeometryVoxels>)>,
     images: Option<ResMut<Assets<Image>>>,
 ) {
     let Some(mut images) = images else {
@@ -218,8 +313,9 @@ pub(crate) fn manage_irradiance_exports(
     let wanted = cameras.iter().any(|(camera, gi)| {
         camera.is_active && gi.enabled && gi.method == GiMethod::RadianceHints && gi.output == GiOutput::IrradianceVolume
     });
-    for (entity, volume, transform, export, chord) in &volumes {
-        let resolution = volume.effective(volume_matrix(transform), chord.and_then(|c| c.metres)).resolution;
+    for (entity, volume, transform, export, chord, voxels) in &volumes {
+        // The resolution the volume runs with: its voxels' (see `extract_volumes`).
+        let resolution = voxels.map_or_else(|| volume.effective(volume_matrix(transform), chord.and_then(|c| c.metres)).resolution, |v| v.key.2);
         match (wanted, export) {
             (true, Some(e)) if e.resolution == resolution => {}
             (true, existing) => {
@@ -283,7 +379,6 @@ pub struct ExtractedRhVolumes {
 type VolumeQuery<'a> = (
     Entity,
     &'a RadianceHintsVolume,
-    &'a GlobalTransform,
     Option<&'a InheritedVisibility>,
     Option<&'a RhGeometryVoxels>,
     Option<&'a RhIrradianceExport>,
@@ -310,17 +405,24 @@ pub(crate) fn extract_volumes(
         return;
     }
     let mut bounds: Option<(Vec3, Vec3)> = None;
-    for (entity, volume, transform, visibility, voxels, export, chord) in &volumes {
+    for (entity, volume, visibility, voxels, export, chord) in &volumes {
         if visibility.is_some_and(|v| !v.get()) {
             continue;
         }
-        let world_from_local = volume_matrix(transform);
-        let settings = volume.effective(world_from_local, chord.and_then(|c| c.metres));
+        // A volume runs with the transform and resolution its voxels were made for: while a new
+        // voxelisation runs in the background, the previous field stays where it was; a volume without
+        // voxels yet is not drawn.
+        let Some(voxels) = voxels else {
+            continue;
+        };
+        let world_from_local = Mat4::from_cols_array(&voxels.key.1.map(f32::from_bits));
+        let mut settings = volume.effective(world_from_local, chord.and_then(|c| c.metres));
+        settings.resolution = voxels.key.2;
         let (lo, hi) = volume_world_bounds(world_from_local);
         bounds = Some(bounds.map_or((lo, hi), |(a, b)| (a.min(lo), b.max(hi))));
         extracted.volumes.push(ExtractedRhVolume {
             entity,
-            voxels: voxels.map(|v| (v.generation, v.data.clone())),
+            voxels: Some((voxels.generation, voxels.data.clone())),
             settings,
             world_from_local,
             export: export.map(|e| e.image.clone()),
@@ -330,5 +432,21 @@ pub(crate) fn extract_volumes(
     let next = RsmFocus { bounds, volumes_need: !extracted.volumes.is_empty(), ..*focus };
     if *focus != next {
         *focus = next;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_changes_since_a_generation_are_the_boxes_in_between_or_none_when_one_is_gone() {
+        let b = |x: f32| (Vec3::splat(x), Vec3::splat(x + 1.0));
+        let changes = RhVoxelChanges { by_generation: [(3, vec![b(3.0)]), (4, vec![b(4.0)]), (5, vec![b(5.0), b(5.5)])].into() };
+        assert_eq!(changes.since(3, 5), Some(vec![b(4.0), b(5.0), b(5.5)]));
+        assert_eq!(changes.since(4, 4), Some(vec![]));
+        // Generation 2 was not kept (or the scene moved on past what is kept): voxelise anew.
+        assert_eq!(changes.since(1, 5), None);
+        assert_eq!(changes.since(3, 6), None);
     }
 }

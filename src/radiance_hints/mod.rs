@@ -145,11 +145,16 @@
 //! plus one extra bounce gathered from the displayed field (which already holds every bounce so far, a
 //! frame old), so bounces accumulate over frames instead of all running every frame; when the motion
 //! stops, full updates and the refinement take over (`docs/dynamic.md` measures lag and error). A moved
-//! mesh re-voxelises only the cells its old and new bounds touch ([`voxelize::voxelize_update`]).
+//! mesh re-voxelises only the cells its old and new bounds touch ([`voxelize::voxelize_update`]), on the
+//! main thread; a volume moved by whole cells scrolls its voxels (the slab that came in is voxelised).
+//! A full voxelisation (a new volume, a new resolution, another move) runs in the background: the
+//! volume keeps its previous voxels, transform and resolution until the new ones arrive, which are then
+//! brought up to date with the geometry changes made meanwhile ([`RhVoxelChanges`]); a volume
+//! draws nothing before its first voxels.
 //!
 //! * **Game scale** (`docs/radiance_hints.md`, § game scale and § reconstruction; lavapipe, 256², default
 //!   settings at half resolution, block relative RMSE / energy): `cornell` 0.121 / 1.06, `cellar`
-//!   0.168 / 0.96, `sponza_like` 0.172 / 1.01 (since issue #32; the rest before it), `open_field` 0.297 / 0.97 (60 m, 0.65 m cells), the
+//!   0.168 / 0.96, `sponza_like` 0.172 / 1.01 (since issue #32; the rest before it), `open_field` 0.320 / 0.99 (60 m, 0.65 m cells; the benchmark, `docs/benchmark.md`; 0.297 / 0.97 before issue #32), the
 //!   point-lit `dynamic` 0.112 / 1.05, `emissive_panel` 0.299 / 1.12.
 //! * **Per pixel** (`docs/radiance_hints.md`, § reconstruction): a still `cornell` frame at 512² on
 //!   lavapipe costs 1.53× the frame without GI with the default half-resolution reconstruction
@@ -179,7 +184,7 @@
 //!   default cascade is not better, § game scale). A 60 m default volume takes about 45 MiB and its full
 //!   update is about 30× that of a small room's.
 //! * [`HIGH`](RadianceHintsVolume::HIGH) is less accurate than the default in `cellar` (0.241 against
-//!   0.200) and on `open_field` (0.506 against 0.297), where its grid meets the occupancy cap of 256
+//!   0.200) and on `open_field` (0.506 against 0.320, `docs/benchmark.md`), where its grid meets the occupancy cap of 256
 //!   voxels per axis (two voxels per cell instead of four); the cause was not isolated.
 //! * 20 cm door jambs (thinner than a cell) in `cellar` read too little light.
 //! * Near-field occlusion below the cell size (boxes on floors) is not modelled by default: the voxel
@@ -205,10 +210,10 @@ pub mod activity;
 pub mod cascade;
 #[cfg(feature = "tools")]
 pub mod dump;
-pub mod extract;
-pub mod prepare;
+mod extract;
+mod prepare;
 mod render;
-pub mod settings;
+mod settings;
 pub mod voxelize;
 
 use bevy::app::SubApp;
@@ -221,7 +226,9 @@ use crate::method::{GiMethodModule, GpuCapabilities, Shortfall};
 
 pub use activity::{RadianceHintsActivity, RhVolumeActivity};
 pub use cascade::{CascadeLevel, RadianceHintsCascade};
-pub use settings::{DepthOcclusion, GridSizing, IrradianceReconstruction, RadianceHintsVolume, SecondaryTransport};
+pub use extract::{MEAN_CHORD_RAYS, RhGeometryVoxels, RhIrradianceExport, RhMeanChord, RhVoxelChanges};
+pub use prepare::{NESTED_BLEND_CELLS, RhVolumeUniform, VisibilityRegion, blend_weight, convergence_updates};
+pub use settings::{DepthOcclusion, GridSizing, IrradianceReconstruction, RadianceHintsVolume, SecondaryTransport, box_size};
 
 use crate::sh::ShOrder;
 
@@ -306,7 +313,9 @@ impl Plugin for RadianceHintsPlugin {
         #[cfg(feature = "tools")]
         app.add_plugins(bevy::render::extract_resource::ExtractResourcePlugin::<dump::RhVolumeDump>::default());
         crate::method::build_method::<Self>(app);
-        app.register_type::<RadianceHintsCascade>()
+        app.init_resource::<extract::RhVoxelChanges>()
+            .init_resource::<extract::RhVoxelJobs>()
+            .register_type::<RadianceHintsCascade>()
             .register_type::<crate::camera::DiffuseGi>()
             .add_systems(
                 PostUpdate,

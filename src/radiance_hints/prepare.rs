@@ -665,15 +665,6 @@ impl RhVolumeGpu {
     pub fn mark_export_written(&mut self, image: &bevy::render::texture::GpuImage) {
         self.export_written = Some(image.texture.id());
     }
-
-    /// Bytes of GPU memory the volume's buffers hold.
-    pub fn memory_bytes(&self) -> u64 {
-        [&self.delta[0], &self.delta[1], &self.sum, &self.result, &self.distances, &self.albedo, &self.occupancy, &self.visibility, &self.packed]
-            .iter()
-            .map(|b| b.size())
-            .sum::<u64>()
-            + self.visibility_previous.as_ref().map_or(0, |b| b.size())
-    }
 }
 
 #[expect(clippy::too_many_arguments, reason = "prepares every per-volume GPU input")]

@@ -98,7 +98,7 @@ fn inspector_ui(
         Option<&mut RadiositySettings>,
         Option<&mut PhotonGridSettings>,
     )>,
-    mut volumes: Query<(Entity, Option<&Name>, &mut RadianceHintsVolume, &GlobalTransform, Option<&crate::radiance_hints::extract::RhMeanChord>)>,
+    mut volumes: Query<(Entity, Option<&Name>, &mut RadianceHintsVolume, &GlobalTransform, Option<&crate::radiance_hints::RhMeanChord>)>,
     mut lights: Query<(Entity, Option<&Name>, &mut GiLight)>,
     diagnostics: Option<Res<DiagnosticsStore>>,
     warnings: Option<Res<crate::DiffuseGiWarnings>>,
