@@ -190,28 +190,29 @@ impl GiMethodStatus {
         self.0.lock().ok()?.get(&method).copied()
     }
 
+    /// Changes the status of `method` (made when absent).
+    fn update(&self, method: GiMethod, change: impl FnOnce(&mut MethodStatus)) {
+        if let Ok(mut map) = self.0.lock() {
+            change(map.entry(method).or_default());
+        }
+    }
+
     /// Sets what a method with background work says of it (from its main-world update): everything
     /// but [`MethodStatus::views_drawn`], which the render world counts.
     pub fn set_background(&self, method: GiMethod, ready: bool, busy: bool, frames_since_start: u32, updates: u64) {
-        if let Ok(mut map) = self.0.lock() {
-            let status = map.entry(method).or_default();
-            *status = MethodStatus { ready, busy, frames_since_start, updates, views_drawn: status.views_drawn };
-        }
+        self.update(method, |s| *s = MethodStatus { ready, busy, frames_since_start, updates, views_drawn: s.views_drawn });
     }
 
     /// Sets whether a GPU method's background work (Radiance Hints' voxelisations) runs, keeping what
     /// the render world said (ready, views drawn).
     pub fn set_busy(&self, method: GiMethod, busy: bool, frames_since_start: u32, updates: u64) {
-        if let Ok(mut map) = self.0.lock() {
-            let status = map.entry(method).or_default();
-            (status.busy, status.frames_since_start, status.updates) = (busy, frames_since_start, updates);
-        }
+        self.update(method, |s| (s.busy, s.frames_since_start, s.updates) = (busy, frames_since_start, updates));
     }
 
-    /// Forgets `method` (no camera uses it any more).
-    pub fn clear(&self, method: GiMethod) {
+    /// Forgets every method but those in `used` (no camera uses the others any more).
+    pub fn keep_only(&self, used: &[GiMethod]) {
         if let Ok(mut map) = self.0.lock() {
-            map.remove(&method);
+            map.retain(|method, _| used.contains(method));
         }
     }
 
@@ -229,11 +230,7 @@ impl GiMethodStatus {
 
     /// Records that `method` drew into a view's target (from the render world's per-view pass).
     pub fn drew(&self, method: GiMethod) {
-        if let Ok(mut map) = self.0.lock() {
-            let status = map.entry(method).or_default();
-            status.ready = true;
-            status.views_drawn += 1;
-        }
+        self.update(method, |s| (s.ready, s.views_drawn) = (true, s.views_drawn + 1));
     }
 }
 
@@ -241,9 +238,7 @@ impl GiMethodStatus {
 /// method that is off as ready.
 pub(crate) fn forget_unused_methods(cameras: Query<(&Camera, &crate::camera::DiffuseGi)>, status: Res<GiMethodStatus>) {
     let used: Vec<GiMethod> = cameras.iter().filter(|(c, gi)| c.is_active && gi.enabled).map(|(_, gi)| gi.method).collect();
-    if let Ok(mut map) = status.0.lock() {
-        map.retain(|method, _| used.contains(method));
-    }
+    status.keep_only(&used);
 }
 
 #[cfg(test)]
@@ -272,7 +267,7 @@ mod tests {
         status.set_background(GiMethod::RsmGather, true, true, 3, 1);
         let s = status.get(GiMethod::RsmGather).expect("recorded");
         assert_eq!((s.busy, s.frames_since_start, s.updates, s.views_drawn), (true, 3, 1, 2), "the drawn views are kept");
-        status.clear(GiMethod::RsmGather);
+        status.keep_only(&[GiMethod::Vpl]);
         assert_eq!(status.get(GiMethod::RsmGather), None);
     }
 }

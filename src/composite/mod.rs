@@ -564,16 +564,9 @@ impl GiViewPass {
         groups: &[(&BindGroup, &[u32])],
         vertices: std::ops::Range<u32>,
     ) -> bool {
-        let (Some(uniforms), Some(depth), Some(gbuffer)) =
-            (params.view_uniforms.uniforms.binding(), view.prepass.depth_view(), view.prepass.deferred_view())
-        else {
+        let Some(view_group) = self.view_group(ctx.render_device(), params, view) else {
             return false;
         };
-        let view_group = ctx.render_device().create_bind_group(
-            "diffuse_gi_view_bind_group",
-            &params.pipeline_cache.get_bind_group_layout(&self.view_layout),
-            &BindGroupEntries::sequential((uniforms, depth, gbuffer)),
-        );
         let offsets = [view.view_offset.offset];
         let mut all = vec![(&view_group, &offsets[..])];
         all.extend_from_slice(groups);
@@ -581,25 +574,27 @@ impl GiViewPass {
         params.status.drew(method);
         true
     }
+
+    /// The view's bind group (group 0 of every view pipeline), bound with the view's uniform offset;
+    /// `None` while the view's uniforms or prepass textures are not there yet.
+    pub fn view_group(&self, device: &RenderDevice, params: &GiViewPassParams, view: &GiViewItem) -> Option<BindGroup> {
+        let (Some(uniforms), Some(depth), Some(gbuffer)) =
+            (params.view_uniforms.uniforms.binding(), view.prepass.depth_view(), view.prepass.deferred_view())
+        else {
+            return None;
+        };
+        Some(device.create_bind_group(
+            "diffuse_gi_view_bind_group",
+            &params.pipeline_cache.get_bind_group_layout(&self.view_layout),
+            &BindGroupEntries::sequential((uniforms, depth, gbuffer)),
+        ))
+    }
 }
 
-/// Draws a method's fullscreen pass into the camera's indirect-light target, inside the GPU time span
-/// `span`: `groups` are bound in order (group 0 is usually the view's, with its uniform offset), then one
-/// triangle covers the target. How every method writes the frame's target.
-pub fn draw_into_target(
-    ctx: &mut RenderContext,
-    span: &'static str,
-    label: &'static str,
-    target: &GiViewTarget,
-    pipeline: &RenderPipeline,
-    groups: &[(&BindGroup, &[u32])],
-) {
-    draw_vertices_into_target(ctx, span, label, target, pipeline, groups, 0..3);
-}
-
-/// [`draw_into_target`] with the pipeline's own geometry: `vertices` non-indexed vertices (a method that
-/// draws a mesh into the target, pulling its vertices from storage buffers).
-pub fn draw_vertices_into_target(
+/// Draws `vertices` non-indexed vertices with `pipeline` into the camera's indirect-light target,
+/// inside the GPU time span `span`, `groups` bound in order (3 for a fullscreen triangle; a method that
+/// draws a mesh pulls its vertices from storage buffers). [`GiViewPass::draw`] is how methods call it.
+fn draw_vertices_into_target(
     ctx: &mut RenderContext,
     span: &'static str,
     label: &'static str,

@@ -250,23 +250,30 @@ pub(crate) fn update_geometry_voxels(
         // following its camera) scrolls, voxelising only the slab that came in.
         let brought = base.as_ref().and_then(|(k, d)| {
             if *k == key {
-                return Some((**d).clone());
+                // A finished full voxelisation of the scene as it is: new everywhere already.
+                return Some(d.clone());
             }
-            if k.1 == key.1 && k.2 == key.2 && k.0 < key.0 {
+            let mut data = if k.1 == key.1 && k.2 == key.2 && k.0 < key.0 {
                 let dirty = changes.since(k.0, key.0)?;
-                return Some(voxelize_update(&snapshot, matrix, settings.resolution, d, &dirty));
-            }
-            if k.0 == key.0 && k.2 == key.2 {
+                voxelize_update(&snapshot, matrix, settings.resolution, d, &dirty)
+            } else if k.0 == key.0 && k.2 == key.2 {
                 let old = Mat4::from_cols_array(&k.1.map(f32::from_bits));
                 let shift = super::voxelize::scroll_shift(old, matrix, settings.resolution)?;
-                return super::voxelize::voxelize_scrolled(&snapshot, matrix, settings.resolution, d, shift);
+                super::voxelize::voxelize_scrolled(&snapshot, matrix, settings.resolution, d, shift)?
+            } else {
+                return None;
+            };
+            // The render world has not seen a background result: its voxels are new everywhere.
+            if from_job {
+                data.changed = super::voxelize::VoxelChange::All;
             }
-            None
+            Some(Arc::new(data))
         });
-        let (inserted_key, mut data) = match (brought, base) {
+        let (inserted_key, data) = match (brought, base) {
             (Some(data), _) => (key, data),
             // Nothing to bring up to date from: voxelise it all in the background (once the running
-            // one, if any, has finished); the volume keeps what it has meanwhile.
+            // one, if any, has finished); the volume keeps what it has meanwhile, or shows a finished
+            // older voxelisation (new everywhere, as made).
             (None, base) => {
                 busy = true;
                 if job.wants(&key) {
@@ -276,21 +283,13 @@ pub(crate) fn update_geometry_voxels(
                     jobs.frames_since_start = 0;
                 }
                 match base.filter(|_| from_job) {
-                    Some((k, data)) => (k, (*data).clone()),
+                    Some(finished) => finished,
                     None => continue,
                 }
             }
         };
-        // The render world has not seen a background result: its voxels are new everywhere.
-        if from_job {
-            data.changed = super::voxelize::VoxelChange::All;
-        }
         worked = true;
-        commands.entity(entity).insert(RhGeometryVoxels {
-            generation: voxels.map_or(1, |v| v.generation + 1),
-            key: inserted_key,
-            data: Arc::new(data),
-        });
+        commands.entity(entity).insert(RhGeometryVoxels { generation: voxels.map_or(1, |v| v.generation + 1), key: inserted_key, data });
     }
     cost.voxels_ms = if worked { start.elapsed().as_secs_f32() * 1000.0 } else { 0.0 };
     let used = cameras.iter().any(|(c, gi)| c.is_active && gi.enabled && gi.method == GiMethod::RadianceHints);

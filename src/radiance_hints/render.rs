@@ -301,16 +301,9 @@ pub(crate) fn reconstruct_gi(
     if draws.is_empty() {
         return;
     }
-    let (Some(uniforms), Some(depth), Some(gbuffer)) =
-        (params.view_uniforms.uniforms.binding(), view.prepass.depth_view(), view.prepass.deferred_view())
-    else {
+    let Some(view_group) = pipelines.reconstruct.view_group(ctx.render_device(), &params, &view) else {
         return;
     };
-    let view_group = ctx.render_device().create_bind_group(
-        "diffuse_gi_rh_reconstruct_view_bind_group",
-        &params.pipeline_cache.get_bind_group_layout(&pipelines.reconstruct.view_layout),
-        &BindGroupEntries::sequential((uniforms, depth, gbuffer)),
-    );
     let diagnostics = ctx.diagnostic_recorder();
     let diagnostics = diagnostics.as_deref();
     let span = diagnostics.time_span(ctx.command_encoder(), "diffuse_gi/rh_reconstruct");
