@@ -152,6 +152,29 @@ fn absurd_settings_are_clamped_and_stay_finite() {
     check(test, (ABSURD_ENERGY.0..ABSURD_ENERGY.1).contains(&e), &image, Some(&truth), format!("clamped settings: energy {e:.3}"));
 }
 
+/// A scene whose links would not fit the memory allowed is not solved: the app runs on, the sidecar
+/// says what the links would need, and no light is drawn; within the budget the same scene is lit.
+#[test]
+fn a_scene_whose_links_exceed_the_memory_allowed_is_not_solved() {
+    let test = "radiosity_over_budget";
+    let settings = RadiositySettings { max_link_memory_mib: 16, ..RadiositySettings::LOW };
+    let report = radiosity(HeadlessOptions { radiosity: settings, size: UVec2::splat(64), frames: 3, ..Default::default() });
+    let needed = report.sidecar["radiosity"]["over_budget_mib"].as_u64();
+    let lit: f64 = report.image.pixels.iter().map(|p| f64::from(p[0] + p[1] + p[2])).sum();
+    check(
+        test,
+        needed.is_some_and(|mib| mib > 16) && lit == 0.0 && !report.image.has_non_finite(),
+        &report.image,
+        None,
+        format!("over the budget: needs {needed:?} MiB, light {lit}"),
+    );
+    let settings = RadiositySettings { max_link_memory_mib: 4096, ..RadiositySettings::LOW };
+    let report = radiosity(HeadlessOptions { radiosity: settings, size: UVec2::splat(64), frames: 3, ..Default::default() });
+    let lit: f64 = report.image.pixels.iter().map(|p| f64::from(p[0] + p[1] + p[2])).sum();
+    let needed = &report.sidecar["radiosity"]["over_budget_mib"];
+    check(test, needed.is_null() && lit > 0.0, &report.image, None, format!("within the budget: {needed} MiB over, light {lit}"));
+}
+
 #[test]
 fn the_sky_of_an_environment_map_lights_a_room_through_its_openings() {
     let test = "radiosity_sky_room";

@@ -539,8 +539,9 @@ fn drive(
             let limit = headless.options.wait_background.map_or(MAX_BACKGROUND_SECONDS, |w| (w as u64).min(MAX_BACKGROUND_SECONDS));
             let waited = headless.render_start.is_some_and(|s| s.elapsed() > Duration::from_secs(limit));
             // Lights that move every frame (`--animate-light`) keep the background busy for good: the
-            // frames are measured as they come.
-            let background_done = !methods.any_busy() || waited || headless.options.animate_light;
+            // frames are measured as they come. (The `dynamic` scene's motion waits until rendering.)
+            let lights_move = headless.options.animate_light && headless.options.scene != StandardScene::Dynamic;
+            let background_done = !methods.any_busy() || waited || lights_move;
             if (settled || headless.phase_frames > MAX_SETTLE_FRAMES) && background_done {
                 headless.phase = Phase::Rendering;
                 headless.phase_frames = 0;
@@ -645,7 +646,8 @@ fn drive(
                 map.insert(
                     "radiosity".into(),
                     json!({ "elements": radiosity.elements, "nodes": radiosity.nodes, "links": t.links,
-                            "last_work": format!("{:?}", radiosity.last),
+                            "leaves_pushed": t.leaves_pushed,
+                            "over_budget_mib": radiosity.over_budget_mib, "last_work": format!("{:?}", radiosity.last),
                             "solves": radiosity.solves, "bounces_run": t.bounces_run, "busy": radiosity.busy,
                             "update_elements_ms": t.update_elements_ms, "create_links_ms": t.create_links_ms,
                             "refine_push_ms": t.refine_push_ms, "illumination_ms": t.illumination_ms }),

@@ -47,6 +47,9 @@ pub struct RadiosityActivity {
     pub ready: bool,
     /// Frames since the last solve was started from the scene as it was then (0 while none ran).
     pub frames_since_start: u32,
+    /// MiB the links of the scene's elements would need, when that is over
+    /// [`max_link_memory_mib`](RadiositySettings::max_link_memory_mib) and nothing was solved.
+    pub over_budget_mib: Option<u64>,
 }
 
 /// How much of the solution a solve recomputed.
@@ -57,10 +60,12 @@ pub enum RadiosityWork {
     Reused,
     /// Only the lighting (lights, settings of the illumination).
     Illumination,
-    /// Moved instances: elements moved and refitted, links and lighting rebuilt.
+    /// Moved instances: elements moved and refitted, their links redone (the others' kept), lighting redone.
     Refit,
     /// New elements (meshes added, removed or re-meshed; element settings), links and lighting.
     Rebuild,
+    /// New elements whose links would need more memory than allowed: nothing solved, no light.
+    OverBudget,
 }
 
 /// The solver and what it was built from: the state a background solve takes and hands back.
@@ -80,6 +85,10 @@ pub struct RadiosityCore {
     links_key: Option<(u64, u32, u32)>,
     /// What the lighting was computed from.
     lighting_key: Option<SolveKey>,
+    /// The link memory needed and allowed when that was last warned about.
+    warned_budget: Option<(u64, u64)>,
+    /// MiB of links the last solve would have needed, when that was over the budget.
+    over_budget_mib: Option<u64>,
 }
 
 /// The main-world state: the solver (in a background task while one runs), the running solve and the
@@ -97,6 +106,7 @@ type SolveKey = JobKey<RadiositySettings>;
 /// What a background solve hands back.
 struct Solution {
     work: RadiosityWork,
+    over_budget_mib: Option<u64>,
     times: StageTimes,
     /// Elements and hierarchy nodes of the solver.
     elements: usize,
@@ -213,11 +223,12 @@ pub(super) fn update_radiosity(
 
     // 1. A finished solve: its solver comes back, its solution is blended in.
     if let Some(solution) = state.job.poll() {
-        let Solution { work, times, elements, nodes, gathered, vertices, indices, instances } = solution;
+        let Solution { work, over_budget_mib, times, elements, nodes, gathered, vertices, indices, instances } = solution;
         *activity = RadiosityActivity {
             elements,
             nodes,
             times,
+            over_budget_mib,
             solves: activity.solves + (work != RadiosityWork::Reused) as u64,
             last: work,
             ..activity.clone()
@@ -248,6 +259,7 @@ pub(super) fn update_radiosity(
             let elements = &core.solver.elements;
             Solution {
                 work,
+                over_budget_mib: core.over_budget_mib,
                 times,
                 elements: elements.len(),
                 nodes: core.solver.hierarchy.nodes.len(),
@@ -332,7 +344,9 @@ fn solve(core: &mut RadiosityCore, snapshot: &SceneSnapshot, key: &SolveKey) -> 
     // 1. Elements: rebuilt on a new layout or element size, moved with instances otherwise.
     let elements_key = Some((snapshot.layout_generation, settings.element_size.to_bits(), key.scene.exposure));
     let moved = core.links_key.is_none_or(|k| k.0 != snapshot.geometry_generation);
-    if core.elements_key != elements_key || (moved && !move_instances(core, snapshot)) {
+    // The element ranges of the instances that moved since the links were made (None: rebuild).
+    let moved_ranges = (core.elements_key == elements_key && moved).then(|| move_instances(core, snapshot)).flatten();
+    if core.elements_key != elements_key || (moved && moved_ranges.is_none()) {
         let start = std::time::Instant::now();
         // The cached elements were cut at another size or carry another exposure's emission.
         let made_as = (settings.element_size.to_bits(), key.scene.exposure);
@@ -372,14 +386,47 @@ fn solve(core: &mut RadiosityCore, snapshot: &SceneSnapshot, key: &SolveKey) -> 
         work = RadiosityWork::Refit;
     }
 
-    // 2. Links, whenever any geometry changed.
+    // 2. Links, whenever any geometry changed, within the memory allowed.
+    core.over_budget_mib = None;
+    let budget = u64::from(settings.max_link_memory_mib) << 20;
+    let needed = core.solver.link_bytes(settings.bins, false);
+    if needed > budget {
+        if core.warned_budget != Some((needed, budget)) {
+            warn!(
+                "Radiosity: the scene's {} elements need {} MiB of links with 6 × {b} × {b} bins, more than \
+                 RadiositySettings::max_link_memory_mib ({} MiB); not solved (no bounced light). Raise element_size, \
+                 lower bins or raise max_link_memory_mib.",
+                core.solver.elements.len(),
+                needed >> 20,
+                settings.max_link_memory_mib,
+                b = settings.bins
+            );
+            core.warned_budget = Some((needed, budget));
+        }
+        core.solver.links = Vec::new();
+        core.solver.leaf_links = Vec::new();
+        core.solver.static_links = None;
+        (core.links_key, core.lighting_key) = (None, None);
+        core.over_budget_mib = Some(needed >> 20);
+        return (RadiosityWork::OverBudget, times, vec![Vec3::ZERO; core.solver.elements.len()]);
+    }
     let links_key = Some((snapshot.geometry_generation, settings.bins, settings.subdivision_threshold.to_bits()));
     if core.links_key != links_key {
-        core.solver.create_links(&params);
+        let keep = core.solver.link_bytes(settings.bins, true) <= budget;
+        match (&moved_ranges, work) {
+            // Moved instances: keep the links among the rest (§4's update for deforming meshes).
+            (Some(ranges), RadiosityWork::Refit) if keep => {
+                let moving = core.solver.moving_segments(|e| ranges.iter().any(|r| r.contains(&e)));
+                core.solver.relink(&params, &moving);
+            }
+            // New elements (a new solver), new bins or threshold: every link anew.
+            _ => core.solver.create_links(&params),
+        }
         core.solver.refine_and_push();
         times.create_links_ms = core.solver.times.create_links_ms;
         times.refine_push_ms = core.solver.times.refine_push_ms;
         times.links = core.solver.times.links;
+        times.leaves_pushed = core.solver.times.leaves_pushed;
         core.links_key = links_key;
         core.lighting_key = None;
         if work == RadiosityWork::Reused {
@@ -413,17 +460,18 @@ fn solve(core: &mut RadiosityCore, snapshot: &SceneSnapshot, key: &SolveKey) -> 
 }
 
 /// Moves the elements of instances whose transform changed (same instances, same meshes) by the
-/// change of their transform. Returns `false` when the snapshot's instances are not those the elements
-/// were made from (then everything is rebuilt).
-fn move_instances(core: &mut RadiosityCore, snapshot: &SceneSnapshot) -> bool {
+/// change of their transform, and returns their element ranges. Returns `None` when the snapshot's
+/// instances are not those the elements were made from (then everything is rebuilt).
+fn move_instances(core: &mut RadiosityCore, snapshot: &SceneSnapshot) -> Option<Vec<std::ops::Range<usize>>> {
     let instances = snapshot.instances();
     if instances.len() != core.instances.len() {
-        return false;
+        return None;
     }
+    let mut moved = Vec::new();
     let elements = &mut core.solver.elements;
     for (instance, (key, version, transform, range)) in instances.iter().zip(core.instances.iter_mut()) {
         if instance.key != *key {
-            return false;
+            return None;
         }
         if instance.version == *version {
             continue;
@@ -432,7 +480,7 @@ fn move_instances(core: &mut RadiosityCore, snapshot: &SceneSnapshot) -> bool {
         let change = now * transform.inverse();
         // A new version in place without a move is a new material or texture: rebuild.
         if !change.is_finite() || now == *transform {
-            return false;
+            return None;
         }
         let normal_matrix = Mat3::from(change.matrix3).inverse().transpose();
         for e in range.clone() {
@@ -441,6 +489,7 @@ fn move_instances(core: &mut RadiosityCore, snapshot: &SceneSnapshot) -> bool {
             elements.normals[e] = (normal_matrix * elements.normals[e]).normalize_or(elements.normals[e]);
         }
         (*version, *transform) = (instance.version, now);
+        moved.push(range.clone());
     }
-    true
+    Some(moved)
 }

@@ -531,6 +531,9 @@ pub struct StageTimes {
     pub bounces_run: u32,
     /// Links stored before the refinement.
     pub links: usize,
+    /// Leaves whose links the last refinement pushed down anew (the others' own and ancestors' links
+    /// had not changed since the one before).
+    pub leaves_pushed: usize,
 }
 
 /// The hierarchical link structure and the lighting solution over a set of [`Elements`].
@@ -555,7 +558,32 @@ pub struct RadiositySolver {
     pub environment: Vec<Vec3>,
     /// The triangles around each element, for sampling the surface a leaf stands for.
     pub cells: DualCells,
+    /// The links among the segments that stand still, kept by [`relink`](Self::relink) while others
+    /// move (none until something moves).
+    pub static_links: Option<StaticLinks>,
+    /// The bins of [`links`](Self::links) that the last [`relink`](Self::relink) filled from moving
+    /// senders (the next one restores them from the kept links).
+    touched: Vec<usize>,
+    /// The nodes whose links the last linking may have changed (`None`: all): the leaves below none
+    /// of them keep their pushed-down links.
+    changed_nodes: Option<Vec<bool>>,
     pub times: StageTimes,
+}
+
+/// The links among the segments that do not move, kept between solves while others move (§4 of the
+/// paper: the links of elements that did not move are kept). One `6n²`-bin array per node, as
+/// [`RadiositySolver::links`]: it doubles the links' memory while a scene has moving meshes.
+#[derive(Clone, Debug, Default)]
+pub struct StaticLinks {
+    /// Per hierarchy root: whether its segment is left out (it moves, or moved): its nodes have no
+    /// links here, and no node here links to it.
+    pub excluded: Vec<bool>,
+    /// The bins per cube face side and the subdivision threshold (bits) the links were made with.
+    bins: u32,
+    threshold: u32,
+    links: Vec<Link>,
+    /// Bins of `links` that hold a link.
+    count: usize,
 }
 
 impl RadiositySolver {
@@ -586,44 +614,191 @@ impl RadiositySolver {
     /// Creates the hierarchical links (§4.2.2) between every pair of segments (and within each), keeping
     /// the shortest link per bin at each end. Each receiving segment's links are made by its own thread;
     /// both ends of a pair make the same subdivisions, so a link sits in a bin of one node and the
-    /// opposite bin of the other.
+    /// opposite bin of the other. Forgets the [kept links](Self::relink) of an earlier move.
     pub fn create_links(&mut self, params: &SolveParams) {
         let start = std::time::Instant::now();
+        self.static_links = None;
+        self.use_bins(params);
+        let mut links = std::mem::take(&mut self.links);
+        links.clear();
+        links.resize(self.hierarchy.nodes.len() * self.node_bins(), EMPTY);
+        let threshold = params.subdivision_threshold.max(1e-3);
+        self.times.links = self.link_segments(&mut links, threshold, false, |_| true, |_| true).0;
+        self.links = links;
+        (self.touched, self.changed_nodes) = (Vec::new(), None);
+        self.times.create_links_ms = start.elapsed().as_secs_f32() * 1e3;
+    }
+
+    /// The links after some segments moved (the paper's §4 update for deforming meshes: the links
+    /// between elements that did not move are kept). `moving[s]` says whether the segment of hierarchy
+    /// root `s` moved since the links were last made. The links among the segments that stand still are
+    /// kept from the first call after a move ([`StaticLinks`]); each call then links only the moving
+    /// segments with everything and the still segments with the moving ones, O(moving × scene) instead
+    /// of O(scene²), and merges those links into the kept ones: the result is the one
+    /// [`create_links`](Self::create_links) gives (each bin keeps the shortest link, whatever the order
+    /// the links are found in). A segment that starts moving, or new bins or threshold, make the kept
+    /// links anew (the cost of `create_links` once).
+    pub fn relink(&mut self, params: &SolveParams, moving: &[bool]) {
+        let start = std::time::Instant::now();
+        let roots = self.hierarchy.roots.len();
+        let threshold = params.subdivision_threshold.max(1e-3);
+        let moving = |s: usize| moving.get(s).copied().unwrap_or(true);
+        let reusable = self.static_links.as_ref().is_some_and(|kept| {
+            kept.bins == params.bins.max(1)
+                && kept.threshold == threshold.to_bits()
+                && kept.excluded.len() == roots
+                && (0..roots).all(|s| !moving(s) || kept.excluded[s])
+        });
+        if !reusable {
+            if self.static_links.is_none() && !(0..roots).any(moving) {
+                // Nothing moves and nothing is kept: a plain rebuild, keeping nothing.
+                self.create_links(params);
+                return;
+            }
+            // Exclude what moves now, and what moved before while that stays a small part of the scene
+            // (a mesh that moves on and off should not remake the kept links each time it restarts).
+            let elements_of = |excluded: &[bool]| -> usize { (0..roots).filter(|&s| excluded[s]).map(|s| self.segment_elements(s)).sum() };
+            let mut excluded: Vec<bool> = (0..roots).map(moving).collect();
+            if let Some(kept) = self.static_links.as_ref().filter(|k| k.excluded.len() == roots) {
+                let union: Vec<bool> = excluded.iter().zip(&kept.excluded).map(|(a, b)| *a || *b).collect();
+                if elements_of(&union) * 4 <= self.elements.len() {
+                    excluded = union;
+                }
+            }
+            // The old kept and merged links go before the new ones are made (memory).
+            (self.static_links, self.links) = (None, Vec::new());
+            self.use_bins(params);
+            let mut links = vec![EMPTY; self.hierarchy.nodes.len() * self.node_bins()];
+            let (count, _) = self.link_segments(&mut links, threshold, false, |r| !excluded[r], |s| !excluded[s]);
+            self.static_links = Some(StaticLinks { excluded, bins: params.bins.max(1), threshold: threshold.to_bits(), links, count });
+        }
+        let kept = self.static_links.take().expect("made above");
+        let per_node = self.node_bins();
+        let mut links = std::mem::take(&mut self.links);
+        // The merged links of the last call differ from the kept ones only in the bins its moving
+        // senders filled (`touched`) and in the moving receivers' nodes: restore those, not the whole array.
+        let incremental = links.len() == kept.links.len();
+        let mut changed = vec![!incremental; self.hierarchy.nodes.len()];
+        if incremental {
+            for &slot in &self.touched {
+                links[slot] = kept.links[slot];
+                changed[slot / per_node] = true;
+            }
+        } else {
+            links.clear();
+            links.extend_from_slice(&kept.links);
+        }
+        for (s, &root) in self.hierarchy.roots.iter().enumerate() {
+            if kept.excluded[s] {
+                let end = self.hierarchy.ends[s] as usize;
+                links[root as usize * per_node..end * per_node].fill(EMPTY);
+                changed[root as usize..end].fill(true);
+            }
+        }
+        // Still receivers from moving senders (the bins they fill recorded), then moving receivers from
+        // everything.
+        let (still, touched) = self.link_segments(&mut links, threshold, true, |r| !kept.excluded[r], |s| kept.excluded[s]);
+        let (moving, _) = self.link_segments(&mut links, threshold, false, |r| kept.excluded[r], |_| true);
+        for &slot in &touched {
+            changed[slot / per_node] = true;
+        }
+        self.times.links = kept.count + still + moving;
+        self.touched = touched;
+        self.changed_nodes = incremental.then_some(changed);
+        self.links = links;
+        self.static_links = Some(kept);
+        self.times.create_links_ms = start.elapsed().as_secs_f32() * 1e3;
+    }
+
+    /// Per hierarchy root, whether its segment holds a moved element (`moved(e)`): the input of
+    /// [`relink`](Self::relink). A segment lies within one mesh, so one of its elements tells.
+    pub fn moving_segments(&self, moved: impl Fn(usize) -> bool) -> Vec<bool> {
+        let nodes = &self.hierarchy.nodes;
+        self.hierarchy
+            .roots
+            .iter()
+            .map(|&root| {
+                let mut node = &nodes[root as usize];
+                while !node.is_leaf() {
+                    node = &nodes[node.first_child as usize];
+                }
+                moved(node.element as usize)
+            })
+            .collect()
+    }
+
+    /// Bytes of the links over these elements with `bins` per cube side: one `6n²`-bin array per
+    /// hierarchy node (made while linking) and one per element (the pushed-down links), plus another
+    /// per node while meshes move (`kept`, [`StaticLinks`]).
+    pub fn link_bytes(&self, bins: u32, kept: bool) -> u64 {
+        let per_node = 6 * u64::from(bins.max(1)).pow(2) * std::mem::size_of::<Link>() as u64;
+        let nodes = self.hierarchy.nodes.len() as u64 * if kept { 2 } else { 1 };
+        per_node * (nodes + self.elements.len() as u64)
+    }
+
+    fn use_bins(&mut self, params: &SolveParams) {
         if self.bins.as_ref().is_none_or(|b| b.n != params.bins.max(1)) {
             self.bins = Some(CubeBins::new(params.bins));
         }
+    }
+
+    /// Elements in the tree of hierarchy root `s` (its root's leaves).
+    fn segment_elements(&self, s: usize) -> usize {
+        let (first, end) = (self.hierarchy.roots[s], self.hierarchy.ends[s]);
+        self.hierarchy.nodes[first as usize..end as usize].iter().filter(|n| n.is_leaf()).count()
+    }
+
+    /// Links every receiving segment `r` with `receives(r)` to every sending segment `s` with
+    /// `sends(s)` into `links` (one array of `6n²` bins per node), keeping the shortest per bin.
+    /// Returns the bins it filled that were empty, and with `record` the indices of the bins it changed.
+    fn link_segments(
+        &self,
+        links: &mut [Link],
+        threshold: f32,
+        record: bool,
+        receives: impl Fn(usize) -> bool + Sync,
+        sends: impl Fn(usize) -> bool + Sync,
+    ) -> (usize, Vec<usize>) {
         let per_node = self.node_bins();
-        self.links.clear();
-        self.links.resize(self.hierarchy.nodes.len() * per_node, EMPTY);
-        let bins = self.bins.as_ref().unwrap();
+        let Some(bins) = self.bins.as_ref() else {
+            return (0, Vec::new());
+        };
         let nodes = &self.hierarchy.nodes;
         let surface = Surface { vertices: &self.elements.vertices, triangles: &self.elements.triangles, cells: &self.cells };
         let roots = &self.hierarchy.roots;
-        let threshold = params.subdivision_threshold.max(1e-3);
         // Split the link array into each segment's node range.
         let mut slices = Vec::with_capacity(roots.len());
-        let mut rest = self.links.as_mut_slice();
+        let mut rest = links;
         let mut at = 0u32;
         for (s, &root) in roots.iter().enumerate() {
             let end = self.hierarchy.ends[s];
             debug_assert_eq!(root, at);
             let (mine, tail) = rest.split_at_mut(((end - root) as usize) * per_node);
-            slices.push((root, mine));
+            if receives(s) {
+                slices.push((root, mine));
+            }
             rest = tail;
             at = end;
         }
-        let count: usize = slices
+        let senders: Vec<u32> = roots.iter().enumerate().filter(|(s, _)| sends(*s)).map(|(_, &r)| r).collect();
+        slices
             .into_par_iter()
             .map(|(root, links)| {
-                let mut linker = Linker { nodes, surface, bins, threshold, base: root, links, stored: 0 };
-                for &other in roots {
+                let touched = if record { Some(Vec::new()) } else { None };
+                let mut linker = Linker { nodes, surface, bins, threshold, base: root, links, stored: 0, touched };
+                for &other in &senders {
                     linker.link(root, other);
                 }
-                linker.stored
+                let offset = root as usize * per_node;
+                (linker.stored, linker.touched.unwrap_or_default().into_iter().map(|slot| offset + slot).collect::<Vec<_>>())
             })
-            .sum();
-        self.times.links = count;
-        self.times.create_links_ms = start.elapsed().as_secs_f32() * 1e3;
+            .reduce(
+                || (0, Vec::new()),
+                |(a, mut slots), (b, more)| {
+                    slots.extend(more);
+                    (a + b, slots)
+                },
+            )
     }
 
     /// Refines the links and pushes them down to the leaves (§4.2.3–4.2.4) in one pass per leaf: the
@@ -643,37 +818,57 @@ impl RadiositySolver {
         let nodes = &self.hierarchy.nodes;
         let surface = Surface { vertices: &self.elements.vertices, triangles: &self.elements.triangles, cells: &self.cells };
         let links = &self.links;
+        // After a relink, a leaf none of whose own and ancestors' links changed keeps its result: the
+        // leaves that see none of the moving segments (another room) are not redone.
+        let changed_nodes = self.changed_nodes.take();
         let mut leaf_links = std::mem::take(&mut self.leaf_links);
-        leaf_links.clear();
-        leaf_links.resize(self.elements.len() * per_node, EMPTY);
-        leaf_links.par_chunks_mut(per_node.max(1)).enumerate().for_each(|(e, out)| {
-            let leaf = self.hierarchy.leaf_of[e];
-            let x = nodes[leaf as usize].position;
-            let n = nodes[leaf as usize].normal;
-            out.copy_from_slice(&links[leaf as usize * per_node..(leaf as usize + 1) * per_node]);
-            let mut ancestor = nodes[leaf as usize].parent;
-            while ancestor != u32::MAX {
-                for link in &links[ancestor as usize * per_node..(ancestor as usize + 1) * per_node] {
-                    if link.node == NO_LINK {
-                        continue;
-                    }
-                    sender_bins(nodes, surface, &nodes[link.node as usize], x, bins, |bin, d, depth| {
-                        if n.dot(d) <= 0.0 {
-                            return;
-                        }
-                        let slot = &mut out[bin as usize];
-                        if depth < slot.distance {
-                            (slot.node, slot.distance) = (link.node, depth);
-                        }
-                    });
+        let reuse = changed_nodes.is_some() && leaf_links.len() == self.elements.len() * per_node;
+        if !reuse {
+            leaf_links.clear();
+            leaf_links.resize(self.elements.len() * per_node, EMPTY);
+        }
+        let changed = |node: u32| !reuse || changed_nodes.as_ref().is_none_or(|c| c[node as usize]);
+        let pushed: usize = leaf_links
+            .par_chunks_mut(per_node.max(1))
+            .enumerate()
+            .map(|(e, out)| {
+                let leaf = self.hierarchy.leaf_of[e];
+                let mut chain = std::iter::successors(Some(leaf), |&a| Some(nodes[a as usize].parent).filter(|&p| p != u32::MAX));
+                if !chain.any(changed) {
+                    return 0;
                 }
-                ancestor = nodes[ancestor as usize].parent;
-            }
-            fill_holes(out, bins, n);
-        });
+                let x = nodes[leaf as usize].position;
+                let n = nodes[leaf as usize].normal;
+                out.copy_from_slice(&links[leaf as usize * per_node..(leaf as usize + 1) * per_node]);
+                let mut ancestor = nodes[leaf as usize].parent;
+                while ancestor != u32::MAX {
+                    for link in &links[ancestor as usize * per_node..(ancestor as usize + 1) * per_node] {
+                        if link.node == NO_LINK {
+                            continue;
+                        }
+                        sender_bins(nodes, surface, &nodes[link.node as usize], x, bins, |bin, d, depth| {
+                            if n.dot(d) <= 0.0 {
+                                return;
+                            }
+                            let slot = &mut out[bin as usize];
+                            if depth < slot.distance {
+                                (slot.node, slot.distance) = (link.node, depth);
+                            }
+                        });
+                    }
+                    ancestor = nodes[ancestor as usize].parent;
+                }
+                fill_holes(out, bins, n);
+                1
+            })
+            .sum();
         self.leaf_links = leaf_links;
-        // The nodes' own links are only the push-down's input: free them (they are the larger array).
-        self.links = Vec::new();
+        self.times.leaves_pushed = pushed;
+        // The nodes' own links are only the push-down's input: free them (they are the larger array),
+        // unless the next relink merges into them.
+        if self.static_links.is_none() {
+            self.links = Vec::new();
+        }
         self.times.refine_push_ms = start.elapsed().as_secs_f32() * 1e3;
     }
 
@@ -681,6 +876,11 @@ impl RadiositySolver {
     /// `direct` per element (lux; light from the GI lights, which the frame does not show) and the
     /// elements' emission. Fills [`gathered`](Self::gathered): the irradiance that arrived over links and
     /// through empty bins (the environment).
+    ///
+    /// Each leaf's bins are first reduced to what a bounce needs ([`Transfer`]): the light of the empty
+    /// bins (the environment, the same every bounce) and, per linked node, the summed weight of the
+    /// bins it fills, so that a bounce is one short weighted sum per element (the bins of one sender
+    /// merged, those below the horizon dropped) instead of a pass over every bin.
     pub fn illuminate(&mut self, direct: &[Vec3], params: &SolveParams) {
         let start = std::time::Instant::now();
         let count = self.elements.len();
@@ -691,6 +891,13 @@ impl RadiositySolver {
             return;
         };
         let per_node = bins.count();
+        let transfers: Vec<Transfer> = (0..count)
+            .into_par_iter()
+            .map(|e| {
+                let links = &self.leaf_links[e * per_node..(e + 1) * per_node];
+                Transfer::new(e, links, bins, &self.elements, &self.hierarchy.nodes, &self.environment, params)
+            })
+            .collect();
         let mut previous_change = 0.0f64;
         for bounce in 0..params.bounces.max(1) {
             // Outgoing radiance of the leaves, then of every node (area-weighted pull-up).
@@ -704,13 +911,8 @@ impl RadiositySolver {
                     sum / node.area.max(1e-30)
                 };
             }
-            let next: Vec<Vec3> = (0..count)
-                .into_par_iter()
-                .map(|e| {
-                    let links = &self.leaf_links[e * per_node..(e + 1) * per_node];
-                    gather(e, links, bins, &self.elements, &self.hierarchy.nodes, &self.radiance, &self.environment, params)
-                })
-                .collect();
+            let radiance = &self.radiance;
+            let next: Vec<Vec3> = transfers.par_iter().map(|t| t.gather(radiance)).collect();
             // The mean over lit elements of the change relative to each element's own light: a bright
             // exterior must not end the bounces of a dim room beside it (a sum over the scene would).
             let (mut change, mut lit) = (0.0f64, 0usize);
@@ -736,64 +938,79 @@ impl RadiositySolver {
     }
 }
 
-/// One element's gathered irradiance over its pushed-down links (Eq. 2 with Eq. 5 per bin).
-#[expect(clippy::too_many_arguments, reason = "the solver's inner loop, kept free of allocations")]
-fn gather(
-    e: usize,
-    links: &[Link],
-    bins: &CubeBins,
-    elements: &Elements,
-    nodes: &[Node],
-    radiance: &[Vec3],
-    environment: &[Vec3],
-    params: &SolveParams,
-) -> Vec3 {
-    let x = elements.positions[e];
-    let n = elements.normals[e];
-    let (mut sum, mut weights) = (Vec3::ZERO, 0.0f32);
-    for (k, link) in links.iter().enumerate() {
-        let dir = bins.centre(k as u32);
-        let cos_bin = n.dot(dir);
-        if cos_bin <= 0.0 {
-            continue;
-        }
-        let omega = bins.solid_angle(k as u32);
-        weights += cos_bin * omega;
-        let incoming = if link.node == NO_LINK {
-            environment.get(k).copied().unwrap_or(params.environment)
-        } else if params.transfer == LinkTransfer::BinSolidAngle {
-            // The closest link's light over the whole bin (a sender seen from behind is dark).
-            let y = &nodes[link.node as usize];
-            let w = (y.position - x).normalize_or_zero();
-            if -y.normal.dot(w) > 0.0 || y.cone >= 1e-3 { radiance[link.node as usize] } else { Vec3::ZERO }
-        } else {
-            let y = &nodes[link.node as usize];
-            let to = y.position - x;
-            let r2 = to.length_squared().max(1e-12);
-            let w = to / r2.sqrt();
-            // The sender shines from its front only; a cluster (cone > 0) from wherever it has leaves.
-            let facing = -y.normal.dot(w);
-            if facing <= 0.0 && y.cone < 1e-3 {
+/// What one element gathers per bounce (Eq. 2 with Eq. 5 per bin), reduced from its pushed-down
+/// links: `E = E_env + Σ_y w_y L_y`, one weight per linked node.
+struct Transfer {
+    /// The environment seen through the empty bins, lux (the same every bounce).
+    environment: Vec3,
+    /// Per linked node: the node and the summed weight of its bins, m²·sr/m² (irradiance per unit of
+    /// the node's radiance).
+    senders: Vec<(u32, f32)>,
+}
+
+impl Transfer {
+    fn new(e: usize, links: &[Link], bins: &CubeBins, elements: &Elements, nodes: &[Node], environment: &[Vec3], params: &SolveParams) -> Self {
+        let x = elements.positions[e];
+        let n = elements.normals[e];
+        let (mut sky, mut weights) = (Vec3::ZERO, 0.0f32);
+        let mut senders: Vec<(u32, f32)> = Vec::new();
+        for (k, link) in links.iter().enumerate() {
+            let dir = bins.centre(k as u32);
+            let cos_bin = n.dot(dir);
+            if cos_bin <= 0.0 {
                 continue;
             }
-            let cos_x = n.dot(w).max(0.0);
-            // Eq. 5 per unit of the bin's cosine-weighted solid angle, so that it adds the same way; the
-            // element's solid angle is capped at its bin's (as printed it grows without bound as two
-            // elements meet).
-            let solid = (facing.max(0.0) * y.area / r2).min(omega);
-            radiance[link.node as usize] * (cos_x * solid / (cos_bin * omega))
-        };
-        sum += incoming * (cos_bin * omega);
-    }
-    if weights <= 0.0 {
-        return Vec3::ZERO;
-    }
-    let e = match params.transfer {
+            let omega = bins.solid_angle(k as u32);
+            weights += cos_bin * omega;
+            if link.node == NO_LINK {
+                sky += environment.get(k).copied().unwrap_or(params.environment) * (cos_bin * omega);
+                continue;
+            }
+            let y = &nodes[link.node as usize];
+            let weight = if params.transfer == LinkTransfer::BinSolidAngle {
+                // The closest link's light over the whole bin (a sender seen from behind is dark).
+                let w = (y.position - x).normalize_or_zero();
+                if -y.normal.dot(w) > 0.0 || y.cone >= 1e-3 { cos_bin * omega } else { 0.0 }
+            } else {
+                let to = y.position - x;
+                let r2 = to.length_squared().max(1e-12);
+                let w = to / r2.sqrt();
+                // The sender shines from its front only; a cluster (cone > 0) from wherever it has leaves.
+                let facing = -y.normal.dot(w);
+                if facing <= 0.0 && y.cone < 1e-3 {
+                    continue;
+                }
+                // Eq. 5: the element's solid angle, capped at its bin's (as printed it grows without
+                // bound as two elements meet).
+                n.dot(w).max(0.0) * (facing.max(0.0) * y.area / r2).min(omega)
+            };
+            if weight > 0.0 {
+                senders.push((link.node, weight));
+            }
+        }
+        // One entry per sender: a sender spanning several bins fills several.
+        senders.sort_unstable_by_key(|s| s.0);
+        senders.dedup_by(|next, kept| {
+            let same = next.0 == kept.0;
+            if same {
+                kept.1 += next.1;
+            }
+            same
+        });
         // The bins above the horizon stand for the whole cosine-weighted hemisphere, π.
-        LinkTransfer::BinSolidAngle => sum * (PI / weights),
-        LinkTransfer::ElementArea => sum,
-    };
-    if e.is_finite() { e.max(Vec3::ZERO) } else { Vec3::ZERO }
+        let scale = match params.transfer {
+            LinkTransfer::BinSolidAngle if weights > 0.0 => PI / weights,
+            LinkTransfer::BinSolidAngle => 0.0,
+            LinkTransfer::ElementArea => 1.0,
+        };
+        senders.iter_mut().for_each(|s| s.1 *= scale);
+        Self { environment: sky * scale, senders }
+    }
+
+    fn gather(&self, radiance: &[Vec3]) -> Vec3 {
+        let e = self.senders.iter().fold(self.environment, |sum, &(node, w)| sum + radiance[node as usize] * w);
+        if e.is_finite() { e.max(Vec3::ZERO) } else { Vec3::ZERO }
+    }
 }
 
 /// The link creation of one receiving segment: writes only the bins of its own nodes.
@@ -806,6 +1023,8 @@ struct Linker<'a> {
     base: u32,
     links: &'a mut [Link],
     stored: usize,
+    /// With `Some`, the bins (indices into `links`) whose link changed.
+    touched: Option<Vec<usize>>,
 }
 
 impl Linker<'_> {
@@ -856,12 +1075,16 @@ impl Linker<'_> {
     }
 
     fn store(&mut self, a: u32, bin: u32, b: u32, distance: f32) {
-        let slot = &mut self.links[(a - self.base) as usize * self.bins.count() + bin as usize];
+        let index = (a - self.base) as usize * self.bins.count() + bin as usize;
+        let slot = &mut self.links[index];
         if distance < slot.distance {
             if slot.node == NO_LINK {
                 self.stored += 1;
             }
             (slot.node, slot.distance) = (b, distance);
+            if let Some(touched) = &mut self.touched {
+                touched.push(index);
+            }
         }
     }
 
@@ -1135,6 +1358,7 @@ fn coplanar(x: &Node, y: &Node, d: Vec3) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use bevy::math::Mat3;
 
     /// A square of side `size` centred at `centre`, facing `normal` (one of the axes), cut into two
     /// triangles, with one colour and emission.
@@ -1473,8 +1697,93 @@ mod tests {
         assert!(s.gathered.is_empty());
     }
 
-    /// A glowing plate sweeping over a floor, its elements refitted every frame (§4.2.1) and the links
-    /// rebuilt: for 1 000 frames the brightest floor element stays under the plate.
+    /// A plate moving and turning inside a closed box: after each move the links kept among the walls
+    /// plus the relinked plate (§4's update) are the links made from scratch: every bin the same
+    /// distance (the node only differs where two senders tie), and the same light.
+    #[test]
+    fn relinking_after_a_move_gives_the_links_made_from_scratch() {
+        let mut patches = closed_box(0.7, 0.0);
+        patches[0] = RadiosityPatch { triangles: square(-Vec3::X, Vec3::X, 2.0, Vec3::splat(0.7), Vec3::ONE) };
+        // A second closed box beside it, lit by its own glowing wall: it never sees the plate.
+        let beside = Vec3::new(5.0, 0.0, 0.0);
+        for (i, wall) in closed_box(0.5, 0.0).into_iter().enumerate() {
+            let emission = if i == 2 { Vec3::ONE } else { Vec3::ZERO };
+            patches.push(RadiosityPatch {
+                triangles: wall.triangles.into_iter().map(|t| PatchTriangle { positions: t.positions.map(|p| p + beside), emission, ..t }).collect(),
+            });
+        }
+        patches.push(RadiosityPatch { triangles: square(Vec3::ZERO, Vec3::Y, 0.8, Vec3::new(0.9, 0.2, 0.1), Vec3::ZERO) });
+        let params = SolveParams { bins: 8, bounces: 3, ..Default::default() };
+        let mut elements = Elements::default();
+        for p in &patches {
+            elements.add_patch(p, 0.25);
+        }
+        let plate_start = elements.len() - patches.last().map_or(0, |p| {
+            let mut e = Elements::default();
+            e.add_patch(p, 0.25);
+            e.len()
+        });
+        let rest = elements.positions.clone();
+        let rest_normals = elements.normals.clone();
+        let mut kept = RadiositySolver::new(elements.clone());
+        kept.create_links(&params);
+        for step in 1..=4 {
+            // The plate rises, slides and tilts.
+            let turn = Mat3::from_rotation_z(0.2 * step as f32);
+            let offset = Vec3::new(0.1 * step as f32, 0.15 * step as f32 - 0.5, -0.05 * step as f32);
+            let moved = |e: usize| e >= plate_start;
+            let positions: Vec<Vec3> = rest.iter().enumerate().map(|(e, &p)| if moved(e) { turn * p + offset } else { p }).collect();
+            let normals: Vec<Vec3> = rest_normals.iter().enumerate().map(|(e, &n)| if moved(e) { turn * n } else { n }).collect();
+            kept.update_elements(&positions, &normals);
+            let moving = kept.moving_segments(moved);
+            assert_eq!(moving.iter().filter(|m| **m).count(), 1, "the plate is one segment");
+            kept.relink(&params, &moving);
+            let kept_links = kept.links.clone();
+            kept.refine_and_push();
+            kept.illuminate(&[], &params);
+
+            let mut fresh = RadiositySolver::new(elements.clone());
+            fresh.update_elements(&positions, &normals);
+            fresh.create_links(&params);
+            assert_eq!(kept.times.links, fresh.times.links, "step {step}: linked bins");
+            let differing = kept_links.iter().zip(&fresh.links).filter(|(a, b)| a.node != b.node).count();
+            // The plate's vertices were moved step by step in one, at once in the other: float rounding.
+            let worst = kept_links
+                .iter()
+                .zip(&fresh.links)
+                .map(|(a, b)| if a.distance == b.distance { 0.0 } else { (a.distance - b.distance).abs() / b.distance })
+                .fold(0.0f32, f32::max);
+            assert!(worst <= 1e-5, "step {step}: a bin's distance differs by {worst} (relative)");
+            assert!(differing * 1000 <= kept_links.len(), "step {step}: {differing} of {} bins link another node", kept_links.len());
+            fresh.refine_and_push();
+            fresh.illuminate(&[], &params);
+            // Where two senders tie, each solver keeps the one it found first (0.1 % of the light).
+            for (e, (a, b)) in kept.gathered.iter().zip(&fresh.gathered).enumerate() {
+                assert!((*a - *b).abs().max_element() <= 5e-3 * b.max_element().max(1e-3), "step {step}, element {e}: {a} vs {b}");
+            }
+            assert!(kept.gathered[plate_start..].iter().any(|g| g.max_element() > 0.01), "the plate is lit");
+            // The leaves of the second box's wall that turns its back to the plate kept their pushed-down
+            // links (after the first relink, which made the kept links and pushed every leaf). Its other
+            // walls' coarser nodes do link to the plate (the near wall occludes it only further down the
+            // hierarchy), so their leaves are pushed again, with the same result.
+            let turned_away = (0..plate_start).filter(|&e| (kept.elements.positions[e].x - 4.0).abs() < 0.05 && kept.elements.normals[e].x > 0.5).count();
+            assert!(turned_away > 0 && kept.gathered[plate_start - 1].max_element() > 0.01, "the second box is lit");
+            if step > 1 {
+                let (pushed, all) = (kept.times.leaves_pushed, kept.elements.len());
+                assert!(pushed <= all - turned_away, "step {step}: {pushed} of {all} leaves pushed ({turned_away} turned away)");
+            }
+        }
+        // The plate is the only segment left out of the kept links, and a wall that starts moving remakes them.
+        let excluded = &kept.static_links.as_ref().unwrap().excluded;
+        assert_eq!(excluded.iter().filter(|x| **x).count(), 1);
+        let mut moving = vec![false; excluded.len()];
+        moving[0] = true;
+        kept.relink(&params, &moving);
+        assert!(kept.static_links.as_ref().unwrap().excluded[0]);
+    }
+
+    /// A glowing plate sweeping over a floor, its elements refitted every frame (§4.2.1) and relinked
+    /// (the floor's links kept, §4): for 1 000 frames the brightest floor element stays under the plate.
     #[test]
     fn a_deforming_mesh_runs_1000_frames_with_its_light_following_it() {
         let floor = RadiosityPatch { triangles: square(Vec3::ZERO, Vec3::Y, 4.0, Vec3::splat(0.5), Vec3::ZERO) };
@@ -1497,7 +1806,8 @@ mod tests {
                 .map(|(e, &p)| if e >= first_plate { p + offset + Vec3::Y * 0.1 * (p.x * 4.0 + t).sin() } else { p })
                 .collect();
             s.update_elements(&positions, &normals);
-            s.create_links(&params);
+            let moving = s.moving_segments(|e| e >= first_plate);
+            s.relink(&params, &moving);
             s.refine_and_push();
             s.illuminate(&vec![Vec3::ZERO; s.elements.len()], &params);
             assert!(s.gathered.iter().all(|g| g.is_finite()));

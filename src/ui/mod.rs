@@ -410,6 +410,7 @@ pub fn radiosity_ui(ui: &mut egui::Ui, settings: &mut Mut<RadiositySettings>) {
     ui.add(egui::Slider::new(&mut v.stop_threshold, 0.0..=1.0).logarithmic(true).text("stop below this share"));
     ui.add(egui::Slider::new(&mut v.subdivision_threshold, 0.05..=8.0).logarithmic(true).text("subdivide above x bin"));
     ui.add(egui::Slider::new(&mut v.element_size, 0.0..=0.5).logarithmic(true).text("element size (of the scene)"));
+    ui.add(egui::Slider::new(&mut v.max_link_memory_mib, 16..=1 << 20).logarithmic(true).text("most link memory (MiB)"));
     let mut area = v.transfer == LinkTransfer::ElementArea;
     ui.checkbox(&mut area, "Eq. 5 with the element's area (as printed)");
     v.transfer = if area { LinkTransfer::ElementArea } else { LinkTransfer::BinSolidAngle };
@@ -427,6 +428,9 @@ pub fn radiosity_ui(ui: &mut egui::Ui, settings: &mut Mut<RadiositySettings>) {
 fn radiosity_activity_ui(ui: &mut egui::Ui, a: &RadiosityActivity) {
     let t = &a.times;
     ui.label(format!("{} elements, {} nodes, {} links; last solve: {:?}", a.elements, a.nodes, t.links, a.last));
+    if let Some(mib) = a.over_budget_mib {
+        ui.colored_label(egui::Color32::YELLOW, format!("not solved: the links need {mib} MiB (see max_link_memory_mib)"));
+    }
     ui.label(format!(
         "in the background: update {:.1} ms, links {:.1} ms, refine+push {:.1} ms, illumination {:.1} ms ({} bounces)",
         t.update_elements_ms, t.create_links_ms, t.refine_push_ms, t.illumination_ms, t.bounces_run
