@@ -176,7 +176,9 @@ pub struct GiDeviceTiming {
 pub struct MainThreadCost {
     /// Updating the scene snapshot (moved, added and removed meshes; changed materials and textures).
     pub snapshot_ms: f32,
-    /// Re-voxelising Radiance Hints volumes.
+    /// Radiance Hints volumes' voxels: starting and taking their background updates, and scrolling a
+    /// volume moved by whole cells (a full voxelisation and the update after a moved mesh run in the
+    /// background).
     pub voxels_ms: f32,
     /// The VPLs' main-thread part: comparing the walks' inputs, drawing the guides, starting a walk.
     /// The walks themselves (random walks over the snapshot, the point set) run in the background.

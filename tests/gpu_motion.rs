@@ -6,7 +6,7 @@
 //! (`wait_background`, at most [`WAIT_BACKGROUND_S`]). Asserted:
 //! * no frame's main-thread cost (the plugin's [`MainThreadCost`](bevy_diffuse_gi::MainThreadCost))
 //!   exceeds [`MAX_MAIN_THREAD_MS`] — before issue #30, radiosity paid 8 400 ms and the photon grid
-//!   1 600 ms per frame here;
+//!   1 600 ms per frame here — and the median frame's [`MAX_MEDIAN_MAIN_THREAD_MS`];
 //! * the light followed the sphere: the image after the stop is the still render of the final pose,
 //!   not of the pose it left (block RMSE to the final pose's still image at most a third of the first
 //!   pose's, and under an absolute bound);
@@ -35,6 +35,10 @@ const AFTER_STOP: u32 = 40;
 const WAIT_BACKGROUND_S: u32 = 120;
 /// The most main-thread milliseconds any frame may cost the plugin (the issue's bound).
 const MAX_MAIN_THREAD_MS: f64 = 20.0;
+/// The most the median frame may cost the main thread while the sphere moves (the issue's target).
+/// Measured 0.09–0.25 ms for every method; Radiance Hints paid 2.0 ms before its voxel updates moved
+/// to the background.
+const MAX_MEDIAN_MAIN_THREAD_MS: f64 = 2.0;
 
 /// The `dynamic` scene from `pose`, the sphere moving until pose `stop`.
 fn options(method: GiMethod, pose: f32, stop: f32, frames: u32) -> HeadlessOptions {
@@ -93,6 +97,13 @@ fn follows_a_moving_mesh(method: GiMethod) {
         &moving.image,
         None,
         format!("a frame cost the main thread {worst:.1} ms (> {MAX_MAIN_THREAD_MS} ms); per frame: {costs:?}"),
+    );
+    check(
+        &test,
+        median <= MAX_MEDIAN_MAIN_THREAD_MS,
+        &moving.image,
+        None,
+        format!("the median frame cost the main thread {median:.2} ms (> {MAX_MEDIAN_MAIN_THREAD_MS} ms); per frame: {costs:?}"),
     );
     check(&test, left_behind > 0.02, &at_start, Some(&at_end), format!("the move changed the light by only {left_behind:.4}"));
     check(

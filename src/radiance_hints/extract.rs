@@ -201,11 +201,12 @@ pub struct RhVoxelJobs {
     frames_since_start: u32,
 }
 
-/// Keeps every volume's voxels current without waiting for a full voxelisation: a geometry change
-/// re-voxelises the cells it touched (on the main thread, in proportion to the change), a move by whole
-/// cells scrolls (voxelising the slab that came in); anything else (the first voxels, a new resolution,
-/// another move) is voxelised in the background, the volume keeping its previous voxels, transform and
-/// resolution meanwhile ([`extract_volumes`]).
+/// Keeps every volume's voxels current without the main thread voxelising: a geometry change
+/// re-voxelises the cells it touched (in the background, in proportion to the change, from the volume's
+/// voxels, which it keeps until the update arrives a frame or two later), a move by whole cells scrolls
+/// (voxelising the slab that came in, on the main thread); anything else (the first voxels, a new
+/// resolution, another move) is voxelised in full in the background, the volume keeping its previous
+/// voxels, transform and resolution meanwhile ([`extract_volumes`]).
 pub(crate) fn update_geometry_voxels(
     mut commands: Commands,
     snapshot: Option<Res<SceneSnapshot>>,
@@ -244,17 +245,31 @@ pub(crate) fn update_geometry_voxels(
             continue;
         }
         let from_job = finished.is_some();
+        // A background update of the cells some geometry changes touched, made from the volume's own
+        // voxels: what it changed is relative to those, which the render world has.
+        let update = finished.as_ref().is_some_and(|(_, d)| d.changed != super::voxelize::VoxelChange::All);
         let base = finished.map(|(k, data)| (k, Arc::new(data))).or_else(|| voxels.map(|v| (v.key, v.data.clone())));
         // From the base to the scene as it is: the same volume some geometry changes later is updated in
-        // the cells those changes touched; the same volume moved by whole cells (a cascade level
-        // following its camera) scrolls, voxelising only the slab that came in.
+        // the cells those changes touched, in the background from the volume's own voxels (the volume
+        // keeps them meanwhile); the same volume moved by whole cells (a cascade level following its
+        // camera) scrolls, voxelising only the slab that came in.
+        let mut wait = false;
         let brought = base.as_ref().and_then(|(k, d)| {
-            if *k == key {
-                // A finished full voxelisation of the scene as it is: new everywhere already.
+            if *k == key || update {
+                // A finished full voxelisation of the scene as it is (new everywhere already), or a
+                // finished update (what changes came after it go into the next one).
                 return Some(d.clone());
             }
             let mut data = if k.1 == key.1 && k.2 == key.2 && k.0 < key.0 {
                 let dirty = changes.since(k.0, key.0)?;
+                if !from_job {
+                    wait = true;
+                    if job.wants(&key) {
+                        let (snapshot, base, resolution) = (snapshot.clone(), d.clone(), settings.resolution);
+                        job.start(key, move || voxelize_update(&snapshot, matrix, resolution, &base, &dirty));
+                    }
+                    return None;
+                }
                 voxelize_update(&snapshot, matrix, settings.resolution, d, &dirty)
             } else if k.0 == key.0 && k.2 == key.2 {
                 let old = Mat4::from_cols_array(&k.1.map(f32::from_bits));
@@ -269,8 +284,14 @@ pub(crate) fn update_geometry_voxels(
             }
             Some(Arc::new(data))
         });
+        if wait {
+            // An update runs: the volume keeps its voxels until it arrives.
+            busy = true;
+            continue;
+        }
+        let inserted_key = if update { base.as_ref().map_or(key, |(k, _)| *k) } else { key };
         let (inserted_key, data) = match (brought, base) {
-            (Some(data), _) => (key, data),
+            (Some(data), _) => (inserted_key, data),
             // Nothing to bring up to date from: voxelise it all in the background (once the running
             // one, if any, has finished); the volume keeps what it has meanwhile, or shows a finished
             // older voxelisation (new everywhere, as made).
