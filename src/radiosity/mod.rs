@@ -130,7 +130,7 @@
 //!   gets about 70 % of the sky the truth gives it. Two facing squares exchange about 10 % too much.
 //! * The light of a moving mesh lags by one solve. In `dynamic` (18 700 elements, one sphere moving)
 //!   a solve takes about 1.1 s on two cores shared with lavapipe (links 0.3, push-down 0.5,
-//!   illumination 0.2 s; 5 000 of the leaves pushed down again), and the light catches up 18 frames
+//!   illumination 0.2 s; 5 000 of the leaves pushed down again), and the light catches up 15–18 frames
 //!   after the sphere stops (`docs/dynamic.md`). The first solve after a segment starts moving makes
 //!   the kept links: a full solve's cost (5–7 s there), once.
 //! * While meshes move, the kept and the merged links together take twice the node links' memory
