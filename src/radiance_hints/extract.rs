@@ -253,7 +253,7 @@ pub(crate) fn update_geometry_voxels(
         // the cells those changes touched, in the background from the volume's own voxels (the volume
         // keeps them meanwhile); the same volume moved by whole cells (a cascade level following its
         // camera) scrolls, voxelising only the slab that came in.
-        let mut wait = false;
+        let (mut wait, mut started) = (false, false);
         let brought = base.as_ref().and_then(|(k, d)| {
             if *k == key || update {
                 // A finished full voxelisation of the scene as it is (new everywhere already), or a
@@ -267,6 +267,7 @@ pub(crate) fn update_geometry_voxels(
                     if job.wants(&key) {
                         let (snapshot, base, resolution) = (snapshot.clone(), d.clone(), settings.resolution);
                         job.start(key, move || voxelize_update(&snapshot, matrix, resolution, &base, &dirty));
+                        started = true;
                     }
                     return None;
                 }
@@ -284,6 +285,9 @@ pub(crate) fn update_geometry_voxels(
             }
             Some(Arc::new(data))
         });
+        if started {
+            jobs.frames_since_start = 0;
+        }
         if wait {
             // An update runs: the volume keeps its voxels until it arrives.
             busy = true;

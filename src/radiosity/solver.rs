@@ -564,8 +564,9 @@ pub struct RadiositySolver {
     /// The bins of [`links`](Self::links) that the last [`relink`](Self::relink) filled from moving
     /// senders (the next one restores them from the kept links).
     touched: Vec<usize>,
-    /// The nodes whose links the last linking may have changed (`None`: all): the leaves below none
-    /// of them keep their pushed-down links.
+    /// The nodes whose links may have changed since the last push-down (`None`: all, as after
+    /// [`create_links`](Self::create_links)): the leaves below none of them keep their pushed-down
+    /// links.
     changed_nodes: Option<Vec<bool>>,
     pub times: StageTimes,
 }
@@ -704,7 +705,14 @@ impl RadiositySolver {
         }
         self.times.links = kept.count + still + moving;
         self.touched = touched;
-        self.changed_nodes = incremental.then_some(changed);
+        // Added to what changed since the last push-down (`None`: everything).
+        self.changed_nodes = match self.changed_nodes.take() {
+            Some(pending) if incremental && pending.len() == changed.len() => {
+                changed.iter_mut().zip(pending).for_each(|(c, p)| *c |= p);
+                Some(changed)
+            }
+            _ => None,
+        };
         self.links = links;
         self.static_links = Some(kept);
         self.times.create_links_ms = start.elapsed().as_secs_f32() * 1e3;
@@ -827,7 +835,7 @@ impl RadiositySolver {
             leaf_links.clear();
             leaf_links.resize(self.elements.len() * per_node, EMPTY);
         }
-        let changed = |node: u32| !reuse || changed_nodes.as_ref().is_none_or(|c| c[node as usize]);
+        let changed = |node: u32| !reuse || changed_nodes.as_ref().is_some_and(|c| c[node as usize]);
         let pushed: usize = leaf_links
             .par_chunks_mut(per_node.max(1))
             .enumerate()
@@ -864,6 +872,7 @@ impl RadiositySolver {
             .sum();
         self.leaf_links = leaf_links;
         self.times.leaves_pushed = pushed;
+        self.changed_nodes = Some(vec![false; self.hierarchy.nodes.len()]);
         // The nodes' own links are only the push-down's input: free them (they are the larger array),
         // unless the next relink merges into them.
         if self.static_links.is_none() {
@@ -1715,14 +1724,12 @@ mod tests {
         patches.push(RadiosityPatch { triangles: square(Vec3::ZERO, Vec3::Y, 0.8, Vec3::new(0.9, 0.2, 0.1), Vec3::ZERO) });
         let params = SolveParams { bins: 8, bounces: 3, ..Default::default() };
         let mut elements = Elements::default();
-        for p in &patches {
+        let (plate, walls) = patches.split_last().expect("walls and a plate");
+        for p in walls {
             elements.add_patch(p, 0.25);
         }
-        let plate_start = elements.len() - patches.last().map_or(0, |p| {
-            let mut e = Elements::default();
-            e.add_patch(p, 0.25);
-            e.len()
-        });
+        let plate_start = elements.len();
+        elements.add_patch(plate, 0.25);
         let rest = elements.positions.clone();
         let rest_normals = elements.normals.clone();
         let mut kept = RadiositySolver::new(elements.clone());
