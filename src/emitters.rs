@@ -14,7 +14,12 @@
 //! samples are spread over the emissive triangles in proportion to their power (stratified over the
 //! cumulative power, uniform by area inside each triangle); each carries `Φ_total / N` in its brightest
 //! channel and the triangle's colour in the others, which keeps the estimator unbiased for any mix of
-//! colours and sizes. Emitters are two-sided, as the tracer's are.
+//! colours and sizes. Emitters are two-sided, as the tracer's are, except where a face looks into its own
+//! closed mesh ([`MeshGeometry::open_sides`](crate::scene::MeshGeometry::open_sides)): the inside of a
+//! glowing box. The tracer never lets that light out; a method whose visibility is coarser than the box
+//! (Radiance Hints' voxels) would let the top face's inside light the room below as brightly as the
+//! bottom face (a room lit by a glowing ceiling box got 2.1–2.3 × its light), so such samples carry
+//! only their open face (`GpuEmitter::normal`'s w), and a triangle closed on both sides none.
 //!
 //! # Cost
 //! Regenerated only when the snapshot's geometry or materials change, and then only the instances whose
@@ -35,7 +40,7 @@ use bevy::render::extract_resource::{ExtractResource, ExtractResourcePlugin};
 use bevy::render::render_resource::ShaderType;
 
 use crate::camera::DiffuseGi;
-use crate::scene::{SceneSnapshot, SceneSnapshotSystems, triangle_area};
+use crate::scene::{OPEN_BACK, OPEN_FRONT, SceneSnapshot, SceneSnapshotSystems, triangle_area};
 
 /// Samples drawn over all emissive surfaces of the scene.
 pub const MAX_EMITTER_SAMPLES: usize = 4096;
@@ -46,7 +51,9 @@ pub const MAX_EMITTER_SAMPLES: usize = 4096;
 pub struct GpuEmitter {
     /// World position (xyz), w unused.
     pub position: Vec4,
-    /// Unit geometric normal of the emitting triangle (xyz); emission leaves both faces.
+    /// Unit geometric normal of the emitting triangle (xyz), turned towards its open face when only one
+    /// is; w: the faces that emit, 2 (both) or 1 (the one the normal points to: the other lies inside
+    /// the closed mesh, [`crate::scene::MeshGeometry::open_sides`]).
     pub normal: Vec4,
     /// Flux in lumens per channel (rgb) carried by this sample.
     pub flux: Vec4,
@@ -58,8 +65,8 @@ pub struct EmitterSamples {
     /// Bumped whenever the samples change.
     pub generation: u64,
     pub samples: Arc<Vec<GpuEmitter>>,
-    /// Total emitted flux in lumens of the brightest channel (the measure the RSM lights use to share
-    /// samples between them).
+    /// Total flux leaving the emitters' open faces, in lumens of the brightest channel (the measure the
+    /// RSM lights use to share samples between them).
     pub power: f32,
     /// What the samples were drawn from: snapshot geometry generation and exposure.
     key: (u64, u32),
@@ -109,10 +116,11 @@ pub(crate) fn update_emitters(
 }
 
 /// Draws `count` point emitters over the emissive triangles of `snapshot` for a camera of `exposure`,
-/// and returns them with the total power (see the [module docs](self)). Empty without emitters.
+/// and returns them with the total power leaving their open faces (see the [module docs](self)). Empty
+/// without emitters.
 pub fn sample_emitters(snapshot: &SceneSnapshot, exposure: f32, count: usize) -> (Vec<GpuEmitter>, f32) {
-    // (triangle vertices, normal, radiance, power) of every emissive triangle.
-    let mut triangles: Vec<([Vec3; 3], Vec3, Vec3, f32)> = Vec::new();
+    // (triangle vertices, normal and open faces, radiance, power of one face) of every emissive triangle.
+    let mut triangles: Vec<([Vec3; 3], Vec4, Vec3, f32)> = Vec::new();
     for instance in snapshot.instances() {
         let Some(material) = snapshot.materials.get(instance.material as usize) else {
             continue;
@@ -125,8 +133,16 @@ pub fn sample_emitters(snapshot: &SceneSnapshot, exposure: f32, count: usize) ->
             let v = instance.triangle(i);
             let area = triangle_area(&v);
             let normal = (v[1] - v[0]).cross(v[2] - v[0]).normalize_or_zero();
+            // A face inside its own closed mesh (the top of a glowing box seen from below, through the
+            // box) emits nothing that leaves it; the sample's normal points to its one open face.
+            let (normal, sides) = match instance.open_sides(i) {
+                s if s == OPEN_FRONT | OPEN_BACK => (normal, 2.0),
+                OPEN_FRONT => (normal, 1.0),
+                OPEN_BACK => (-normal, 1.0),
+                _ => continue,
+            };
             if area > 0.0 && normal != Vec3::ZERO {
-                triangles.push((v, normal, radiance, std::f32::consts::PI * radiance.max_element() * area));
+                triangles.push((v, normal.extend(sides), radiance, std::f32::consts::PI * radiance.max_element() * area));
             }
         }
     }
@@ -153,11 +169,13 @@ pub fn sample_emitters(snapshot: &SceneSnapshot, exposure: f32, count: usize) ->
         let colour = radiance / radiance.max_element();
         samples.push(GpuEmitter {
             position: position.extend(1.0),
-            normal: normal.extend(0.0),
+            normal,
             flux: (colour * per_sample).extend(0.0),
         });
     }
-    (samples, total as f32)
+    // What leaves the open faces: twice a face's flux where both are open.
+    let emitted: f64 = triangles.iter().map(|t| t.3 as f64 * t.1.w as f64).sum();
+    (samples, emitted as f32)
 }
 
 /// Irradiance (lux) at a point from a Lambertian rectangle of radiance `radiance` in a plane parallel to
@@ -203,8 +221,8 @@ mod tests {
         let snapshot = SceneSnapshot::build(triangles, vec![SnapshotMaterial::DEFAULT_GREY, glow], vec![], vec![]);
         let (samples, power) = sample_emitters(&snapshot, 1.0, 1000);
         assert_eq!(samples.len(), 1000);
-        // Φ = π L A in the brightest channel.
-        let expected = std::f32::consts::PI * 100.0 * 0.25;
+        // Φ = π L A in the brightest channel, from each face of the sheet.
+        let expected = 2.0 * std::f32::consts::PI * 100.0 * 0.25;
         assert!((power - expected).abs() < 1e-3 * expected, "{power} vs {expected}");
         let flux: Vec3 = samples.iter().map(|s| s.flux.truncate()).sum();
         let want = std::f32::consts::PI * Vec3::new(100.0, 50.0, 10.0) * 0.25;
@@ -212,6 +230,7 @@ mod tests {
         for s in &samples {
             assert!((s.position.y - 1.0).abs() < 1e-5 && s.position.x.abs() <= 0.25 + 1e-5 && s.position.z.abs() <= 0.25 + 1e-5);
             assert!((s.normal.y.abs() - 1.0).abs() < 1e-5);
+            assert_eq!(s.normal.w, 2.0, "a sheet emits from both faces");
         }
         // Uniform by area: as many samples in each half of the panel, within the stratification.
         let left = samples.iter().filter(|s| s.position.x < 0.0).count();
@@ -278,5 +297,54 @@ mod tests {
                 assert!((got - want).abs() < 0.02 * want, "at {p}: {got} lx vs {want} lx");
             }
         }
+    }
+
+    /// The twelve triangles of the box `lo..hi`, wound to face outwards.
+    fn closed_box(lo: Vec3, hi: Vec3, material: u32) -> Vec<InputTriangle> {
+        let corner = |i: usize| Vec3::new(if i & 1 == 0 { lo.x } else { hi.x }, if i & 2 == 0 { lo.y } else { hi.y }, if i & 4 == 0 { lo.z } else { hi.z });
+        let centre = (lo + hi) / 2.0;
+        // Each face as four corners around it; the winding is fixed below to face away from the centre.
+        let faces = [[0, 1, 3, 2], [4, 5, 7, 6], [0, 1, 5, 4], [2, 3, 7, 6], [0, 2, 6, 4], [1, 3, 7, 5]];
+        let mut triangles = Vec::new();
+        for face in faces {
+            let [a, b, c, d] = face.map(corner);
+            let outwards = (b - a).cross(c - a).dot((a + c) / 2.0 - centre) > 0.0;
+            let (b, d) = if outwards { (b, d) } else { (d, b) };
+            triangles.push(InputTriangle::flat([a, b, c], material));
+            triangles.push(InputTriangle::flat([a, c, d], material));
+        }
+        triangles
+    }
+
+    #[test]
+    fn a_closed_glowing_box_emits_from_its_outside_only() {
+        // A 1 × 0.02 × 0.6 m glowing box whose underside is 0.8 m over the floor, as a generated room's
+        // ceiling light. Its faces' insides look into the box: every sample carries its outward face only.
+        let le = Vec3::splat(40.0);
+        let glow = SnapshotMaterial { emissive: le, diffuse: Vec3::ZERO, ..SnapshotMaterial::DEFAULT_GREY };
+        let (lo, hi) = (Vec3::new(-0.5, 0.8, -0.3), Vec3::new(0.5, 0.82, 0.3));
+        let mut triangles = closed_box(lo, hi, 1);
+        triangles.extend(quad(0.0, 4.0, 0));
+        let snapshot = SceneSnapshot::build(triangles, vec![SnapshotMaterial::DEFAULT_GREY, glow], vec![], vec![]);
+        let (samples, power) = sample_emitters(&snapshot, 1.0, MAX_EMITTER_SAMPLES);
+        let centre = (lo + hi) / 2.0;
+        for s in &samples {
+            assert_eq!(s.normal.w, 1.0, "one face of a closed box emits");
+            let out = s.position.truncate() - centre;
+            assert!(s.normal.truncate().dot(out) > 0.0, "the normal {} at {} points into the box", s.normal, s.position);
+        }
+        let area = 2.0 * (1.0 * 0.02 + 1.0 * 0.6 + 0.02 * 0.6);
+        let expected = std::f32::consts::PI * 40.0 * area;
+        assert!((power - expected).abs() < 1e-3 * expected, "{power} vs {expected}");
+        // Under the box, the floor gets the underside's light (and a little from the thin sides), not the
+        // top face's as well: counting both faces of every triangle gave twice the light.
+        let mut e = 0.0;
+        for s in &samples {
+            let to = s.position.truncate();
+            let w = to.normalize();
+            e += s.flux.x * s.normal.truncate().dot(-w).max(0.0) * w.y.max(0.0) / (std::f32::consts::PI * to.length_squared());
+        }
+        let underside = parallel_rectangle_irradiance(40.0, 0.8, [-0.5, 0.5], [-0.3, 0.3]);
+        assert!(e > 0.98 * underside && e < 1.05 * underside, "{e} lx under the box, its underside alone {underside} lx");
     }
 }

@@ -16,7 +16,8 @@
 // confidence (Eq. 9) and visibility (Eq. 11) of the paper's secondary bounces.
 //
 // Emissive surfaces (src/emitters.rs) are injected the same way: an emitter sample of flux Φ_k sends
-// Φ_k |n_k·ω_k| / (π d²) (M/N) to the receiver, M the emitter samples and N those drawn; they take
+// Φ_k |n_k·ω_k| / (π d²) (M/N) to the receiver from the face it sees, if that face is open (not inside
+// a closed mesh), M the emitter samples and N those drawn; they take
 // `emitter_fraction` of the N_s samples (their power against the GI lights').
 //
 // VOXEL_VISIBILITY: the paper leaves the first bounce unoccluded (§7), so light reaches hints through
@@ -386,14 +387,16 @@ fn inject(@builtin(global_invocation_id) gid: vec3<u32>) {
         d_max = max(d_max, d);
         valid += 1.0;
         let w = to_x / max(d, 1e-6);
-        // Two-sided: the face that looks at the receiver emits.
+        // The face that looks at the receiver emits, if it is open (w = 2: both faces are; w = 1: only
+        // the one the normal points to, the other lies inside its closed mesh).
         let facing = dot(e.normal.xyz, -w);
+        let emitting = select(facing, abs(facing), e.normal.w > 1.5);
         let n = e.normal.xyz * sign(facing);
-        if abs(facing) <= 0.0 || !path_free(y, e.position.xyz, n, lift) {
+        if emitting <= 0.0 || !path_free(y, e.position.xyz, n, lift) {
             continue;
         }
         let weight = f32(volume.emitter_count) / f32(emitter_samples);
-        var contribution = e.flux.rgb * (weight * abs(facing) / (PI * max(d2, 1e-4)));
+        var contribution = e.flux.rgb * (weight * emitting / (PI * max(d2, 1e-4)));
 #ifdef DEPTH_OCCLUSION
         contribution *= depth_attenuation(e.position.xyz, y);
 #endif

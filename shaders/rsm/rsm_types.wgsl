@@ -44,7 +44,8 @@ struct GiLight {
 struct Emitter {
     // xyz: world position
     position: vec4<f32>,
-    // xyz: unit normal of the emitting triangle
+    // xyz: unit normal of the emitting triangle, towards its open face when only one is; w: the faces
+    // that emit, 2 (both) or 1 (the one the normal points to)
     normal: vec4<f32>,
     // rgb: flux in lumens carried by this sample
     flux: vec4<f32>,

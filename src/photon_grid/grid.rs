@@ -13,7 +13,7 @@ use rayon::prelude::*;
 
 use crate::sampling::{cosine_hemisphere, fibonacci_sphere, orthonormal_basis, rng_for, uniform2, uniform_sphere};
 use crate::scene::environment::Environment;
-use crate::scene::{SceneSnapshot, SnapshotLight, range_falloff, triangle_area, triangle_box_overlap};
+use crate::scene::{OPEN_BACK, OPEN_FRONT, SceneSnapshot, SnapshotLight, range_falloff, triangle_area, triangle_box_overlap};
 use crate::sh::{COSINE_LOBE, band, basis};
 
 /// V-grid cells per SH-grid cell along each axis (§3.1: 4 × 4 × 4 V-cells merge into one SH cell).
@@ -395,15 +395,17 @@ pub fn trace_photons(
         sources.push((Source::Light(light), flux));
     }
     for (i, tri) in snapshot.triangles() {
-        let (instance, _) = snapshot.locate(i);
+        let (instance, local) = snapshot.locate(i);
         let Some(material) = snapshot.materials.get(instance.material as usize) else { continue };
         let emission = material.emission(params.exposure);
         if !emission.is_finite() || emission.max_element() <= 0.0 {
             continue;
         }
         let area = triangle_area(&tri);
-        // Two-sided Lambertian emitter: π L_e A from each face.
-        sources.push((Source::Emitter(i), emission.max(Vec3::ZERO) * (2.0 * PI * area)));
+        // Two-sided Lambertian emitter: π L_e A from each open face (a face inside its own closed mesh
+        // emits nothing that leaves it, and its photons would be stored as light leaving the emitter).
+        let faces = instance.open_sides(local).count_ones() as f32;
+        sources.push((Source::Emitter(i), emission.max(Vec3::ZERO) * (faces * PI * area)));
     }
     if let Some(env) = environment {
         let mean = (0..256).map(|i| env.radiance(fibonacci_sphere(i, 256))).sum::<Vec3>() / 256.0;
@@ -528,9 +530,13 @@ fn emit(
             if n == Vec3::ZERO {
                 return None;
             }
-            if rng.random::<bool>() {
-                n = -n;
-            }
+            let (instance, local) = snapshot.locate(i);
+            n = match instance.open_sides(local) {
+                OPEN_FRONT => n,
+                OPEN_BACK => -n,
+                _ if rng.random::<bool>() => -n,
+                _ => n,
+            };
             let d = cosine_hemisphere(n, uniform2(rng));
             Some((p + n * epsilon, d, share, None))
         }

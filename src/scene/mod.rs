@@ -357,6 +357,8 @@ pub struct MeshGeometry {
     attributes: Vec<TriangleAttributes>,
     bvh: Option<CwBvh>,
     bounds: Option<(Vec3, Vec3)>,
+    /// [`MeshGeometry::open_sides`] of every triangle, made on first use.
+    open_sides: std::sync::OnceLock<Vec<u8>>,
 }
 
 impl std::fmt::Debug for MeshGeometry {
@@ -415,7 +417,51 @@ impl MeshGeometry {
             attributes,
             bvh: Some(bvh),
             bounds: Some((from_bvh(lo), from_bvh(hi))),
+            open_sides: Default::default(),
         }
+    }
+
+    /// Which faces of triangle `i` (BVH order) look into open space rather than into this closed mesh:
+    /// [`OPEN_FRONT`] (the side its geometric normal points to) and [`OPEN_BACK`] bits. The inside faces of
+    /// a closed box are not open: light they emit never leaves the box. A face is closed when most of five
+    /// rays leaving it (along its normal and tilted 45° four ways) first meet the back of another triangle
+    /// of the mesh; a single sheet, an open shell and a mesh with inverted winding keep both sides open.
+    /// Computed for all triangles on the first call (ten rays each through the mesh's own BVH) and kept.
+    pub fn open_sides(&self, i: usize) -> u8 {
+        self.open_sides.get_or_init(|| self.find_open_sides()).get(i).copied().unwrap_or(OPEN_FRONT | OPEN_BACK)
+    }
+
+    fn find_open_sides(&self) -> Vec<u8> {
+        let Some((bvh, (lo, hi))) = self.bvh.as_ref().zip(self.bounds) else {
+            return Vec::new();
+        };
+        let epsilon = ((hi - lo).length() * 1e-4).max(1e-6);
+        let back_hit = |origin: Vec3, direction: Vec3| {
+            let ray = bvh_ray(origin, direction, 0.0, f32::INFINITY);
+            let mut hit = RayHit::none();
+            bvh.ray_traverse(ray, &mut hit, |r, id| intersect_triangle(&self.triangles[id], r).map_or(f32::INFINITY, |(t, _, _)| t))
+                && self.attributes[hit.primitive_id as usize].geometric_normal.dot(direction) > 0.0
+        };
+        let tilt = std::f32::consts::FRAC_1_SQRT_2;
+        self.triangles
+            .iter()
+            .zip(&self.attributes)
+            .map(|(t, a)| {
+                let centre = from_bvh(t.v0 + t.v1 + t.v2) / 3.0;
+                let n = a.geometric_normal;
+                let (u, v) = n.any_orthonormal_pair();
+                let mut open = 0;
+                for (bit, side) in [(OPEN_FRONT, n), (OPEN_BACK, -n)] {
+                    let origin = centre + side * epsilon;
+                    let directions = [side, (side + u) * tilt, (side - u) * tilt, (side + v) * tilt, (side - v) * tilt];
+                    let closed = directions.iter().filter(|&&d| back_hit(origin, d)).count();
+                    if closed < 3 {
+                        open |= bit;
+                    }
+                }
+                open
+            })
+            .collect()
     }
 
     pub fn triangle_count(&self) -> usize {
@@ -427,6 +473,11 @@ impl MeshGeometry {
         self.bounds
     }
 }
+
+/// [`MeshGeometry::open_sides`]: the front face (along the geometric normal) looks into open space.
+pub const OPEN_FRONT: u8 = 1;
+/// [`MeshGeometry::open_sides`]: the back face looks into open space.
+pub const OPEN_BACK: u8 = 2;
 
 /// One mesh entity in the snapshot: shared local geometry, a transform and a material.
 #[derive(Clone, Debug)]
@@ -517,6 +568,12 @@ impl SnapshotInstance {
 
     /// World-space unit geometric and vertex normals of local triangle `i` (what a hit needs, without the
     /// vertices and area of [`SnapshotInstance::attributes`]).
+    /// [`MeshGeometry::open_sides`] of local triangle `i`; the front is the side of its world geometric
+    /// normal ([`SnapshotInstance::triangle`]'s winding), mirrored or not.
+    pub fn open_sides(&self, i: usize) -> u8 {
+        self.geometry.open_sides(i)
+    }
+
     pub fn world_normals(&self, i: usize) -> (Vec3, [Vec3; 3]) {
         let a = &self.geometry.attributes[i];
         let n = |v: Vec3| (self.normal_matrix * v).try_normalize().unwrap_or(v);

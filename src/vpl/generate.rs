@@ -263,7 +263,8 @@ pub fn pilot_hits(snapshot: &SceneSnapshot, light: &SnapshotLight) -> PilotHits 
 ///
 /// An emissive surface is itself a diffuse emitter, which is what a VPL is: an emitter path starts with a
 /// VPL of bounce 0 on one of the emitter samples (two-sided, as the tracer's emitters are: a random face,
-/// with twice the sample's one-sided flux `π L_e A / M`), and walks on from it like a VPL (Keller 1997
+/// with twice the sample's one-sided flux `π L_e A / M`; one-sided where the other face lies inside a
+/// closed mesh), and walks on from it like a VPL (Keller 1997
 /// starts instant radiosity's paths on area lights the same way). Bevy draws no light from emissive
 /// materials, so these VPLs carry the emitters' direct light as well as its bounces.
 pub fn generate_vpls(
@@ -283,8 +284,8 @@ pub fn generate_vpls(
     let extent = bounds.1 - bounds.0;
     let across = extent.x * extent.z + extent.x * extent.y + extent.y * extent.z;
     let guide = |i: usize| guides.and_then(|g| g.get(i));
-    // One power per light, then the emitters' (both faces), in lumens of the brightest channel.
-    let emitter_power = 2.0 * emitters.iter().map(|e| e.flux.truncate().max_element().max(0.0)).sum::<f32>();
+    // One power per light, then the emitters' (their open faces), in lumens of the brightest channel.
+    let emitter_power = emitters.iter().map(|e| e.flux.truncate().max_element().max(0.0) * e.normal.w).sum::<f32>();
     let mut powers: Vec<f32> = lights
         .iter()
         .enumerate()
@@ -314,10 +315,13 @@ pub fn generate_vpls(
         for i in 0..count {
             let u = stream.vertex_4d(i, 0);
             let e = emitters[((u[0] * m as f32) as usize).min(m - 1)];
-            let face = if u[1] < 0.5 { 1.0 } else { -1.0 };
+            // A random one of its open faces (the normal's side when only one is).
+            let sides = e.normal.w;
+            let face = if sides < 1.5 || u[1] < 0.5 { 1.0 } else { -1.0 };
             let normal = e.normal.truncate() * face;
-            // Each sample is one of M with `π L_e A / M` per face; this path stands for M / count of them.
-            let flux = e.flux.truncate() * (2.0 * m as f32 / count as f32);
+            // Each sample is one of M with `π L_e A / M` per open face; this path stands for M / count of
+            // them.
+            let flux = e.flux.truncate() * (sides * m as f32 / count as f32);
             if normal == Vec3::ZERO || !flux.is_finite() || flux.max_element() <= 0.0 {
                 continue;
             }
