@@ -7,7 +7,7 @@
 
 #import bevy_core_pipeline::fullscreen_vertex_shader::FullscreenVertexOutput
 #import bevy_render::view::View
-#import bevy_diffuse_gi::vpl_types::{PI, Vpl, VplUniform, to_local, paraboloid_coords, ism_index}
+#import bevy_diffuse_gi::vpl_types::{PI, Vpl, VplUniform, basis, to_local, paraboloid_coords, paraboloid_direction, ism_index}
 #import bevy_diffuse_gi::gi_frame::{surface_at, finite_or_zero}
 
 @group(0) @binding(0) var<uniform> view: View;
@@ -26,7 +26,9 @@ const GI_SCALE: i32 = #{GI_SCALE};
 // `ism_bias · d`, plus a slope-scaled part (within one texel, about 4/R radians at the paraboloid's
 // centre, a receiver tilted by θ_x spans d · (4/R) · tan θ_x of depth, which must not shadow itself),
 // plus the radius of the surface disk a splatted point stands for.
-fn visibility(i: u32, local: vec3<f32>, d: f32, cos_x: f32) -> f32 {
+//
+// Traced maps (`u.traced`): see `traced_test`; `x` and `n` are the receiver's position and normal.
+fn visibility(i: u32, local: vec3<f32>, d: f32, cos_x: f32, x: vec3<f32>, n: vec3<f32>) -> f32 {
     let r = u.ism_resolution;
     let tan_x = min(sqrt(max(1.0 - cos_x * cos_x, 0.0)) / max(cos_x, 1e-3), 8.0);
     // Points are splatted as disks of `point_radius`: the receiver's own surface may stand that much
@@ -36,17 +38,43 @@ fn visibility(i: u32, local: vec3<f32>, d: f32, cos_x: f32) -> f32 {
     let base = vec2<i32>(floor(p));
     let f = p - floor(p);
     var v = 0.0;
+    var on_surface = true;
     for (var c = 0; c < 4; c++) {
         let o = vec2(c & 1, c >> 1u);
         let t = vec2<u32>(clamp(base + o, vec2(0), vec2(i32(r) - 1)));
         let stored = ism[ism_index(u, i, 0u, t)];
-        // 0: no occluder in this direction.
-        let occluder = select(1e30, 1.0 / bitcast<f32>(stored), stored != 0u);
-        let lit = select(0.0, 1.0, d <= occluder + tolerance);
+        var lit = 0.0;
+        if u.traced != 0u {
+            let test = traced_test(stored, vpls[i], t, x, n, d);
+            lit = select(0.0, 1.0, test.x);
+            on_surface = on_surface && (test.x || test.y);
+        } else {
+            // 0: no occluder in this direction.
+            let occluder = select(1e30, 1.0 / bitcast<f32>(stored), stored != 0u);
+            lit = select(0.0, 1.0, d <= occluder + tolerance);
+        }
         let w = select(1.0 - f.x, f.x, o.x == 1) * select(1.0 - f.y, f.y, o.y == 1);
         v += lit * w;
     }
+    // Traced maps: a receiver whose four texels all either see past it or met its own surface lies on
+    // that surface, lit (src/vpl/generate.rs, traced_visibility).
+    if u.traced != 0u && on_surface {
+        return 1.0;
+    }
     return v;
+}
+
+// A traced texel against the receiver at `x` (normal `n`, distance `d`): whether it is nearer than the
+// far side of the texel's first occluder (x), and whether the point the texel's centre ray met lies in
+// the receiver's plane (y). src/vpl/generate.rs, traced_test, is its CPU twin.
+fn traced_test(stored: u32, vpl: Vpl, t: vec2<u32>, x: vec3<f32>, n: vec3<f32>, d: f32) -> vec2<bool> {
+    if stored == 0u {
+        return vec2(true, false);
+    }
+    let depths = unpack2x16float(stored);
+    let direction = basis(vpl.normal.xyz) * paraboloid_direction(t, u.ism_resolution);
+    let offset = vpl.position.xyz + direction * depths.y - x;
+    return vec2(d <= depths.x + u.ism_bias * d, abs(dot(offset, n)) <= u.plane_tolerance * length(offset));
 }
 
 @fragment
@@ -74,7 +102,7 @@ fn gather(in: FullscreenVertexOutput) -> @location(0) vec4<f32> {
             continue;
         }
         let g = min(cos_x * cos_y / d2, u.geometry_bound);
-        let vis = visibility(i, to_local(vpl.normal.xyz, -w), d, cos_x);
+        let vis = visibility(i, to_local(vpl.normal.xyz, -w), d, cos_x, x, n);
         e += vpl.flux.rgb * (g * vis);
     }
     let result = finite_or_zero(e / (PI * PI) * u.intensity);

@@ -33,6 +33,11 @@ struct VplUniform {
     point_radius: f32,
     // Multiplies the slope-scaled part of the depth tolerance: 1 for splatted maps, 0 for traced ones.
     slope_tolerance: f32,
+    // 1: the maps are traced (texels hold the far side and the first surface, two f16); 0: splatted.
+    traced: u32,
+    // Traced maps: how far off a receiver's plane, as a fraction of its distance from the point a
+    // texel's centre ray hit, that point still counts as the receiver's own surface.
+    plane_tolerance: f32,
 }
 
 // A continuous orthonormal basis (t, b, n) around unit n (Duff et al. 2017); the same in every pass.
@@ -53,6 +58,17 @@ fn to_local(n: vec3<f32>, d: vec3<f32>) -> vec3<f32> {
 fn paraboloid_coords(local: vec3<f32>, resolution: u32) -> vec2<f32> {
     let uv = local.xy / (1.0 + max(local.z, 0.0));
     return (uv * 0.5 + 0.5) * f32(resolution);
+}
+
+// The unit direction, in the frame of the map's normal, through the centre of texel `t` of a
+// `resolution`² paraboloid map (the inverse of `paraboloid_coords`; src/vpl/generate.rs,
+// paraboloid_direction). Texels outside the paraboloid's disk give their direction on its rim.
+fn paraboloid_direction(t: vec2<u32>, resolution: u32) -> vec3<f32> {
+    var uv = (vec2<f32>(t) + 0.5) / f32(resolution) * 2.0 - 1.0;
+    uv /= max(length(uv), 1.0);
+    let r2 = dot(uv, uv);
+    let z = (1.0 - r2) / (1.0 + r2);
+    return normalize(vec3(uv * (1.0 + z), z));
 }
 
 // Word index of texel `t` of level `level` (0, 1, 2) of VPL `vpl`'s shadow map.

@@ -45,8 +45,14 @@ pub struct VplUniform {
     pub intensity: f32,
     pub point_radius: f32,
     /// Multiplies the slope-scaled part of the depth tolerance: 1 for splatted maps, 0 for traced ones
-    /// (they store the far side of the first occluder, which leaves its own surface lit).
+    /// (they store the far side of the first occluder and its first surface, which leave its own surface
+    /// lit).
     pub slope_tolerance: f32,
+    /// 1 when the maps are traced (each texel two half floats: the far side of the first occluder and its
+    /// first surface, [`encode_traced_texel`](super::generate::encode_traced_texel)), 0 when splatted.
+    pub traced: u32,
+    /// Traced maps: [`TRACED_PLANE_TOLERANCE`](super::generate::TRACED_PLANE_TOLERANCE).
+    pub plane_tolerance: f32,
 }
 
 /// The depth tolerance of traced shadow maps, as a fraction of the distance. They store the far side of
@@ -274,6 +280,8 @@ pub(super) fn prepare_vpls(
         ism_bias: if gpu.traced { TRACED_DEPTH_BIAS } else { set.settings.ism_bias },
         intensity: 1.0,
         slope_tolerance: if gpu.traced { 0.0 } else { 1.0 },
+        traced: gpu.traced as u32,
+        plane_tolerance: super::generate::TRACED_PLANE_TOLERANCE,
         // Each of a splatted shadow map's points stands for an equal share of the scene's surface: a disk
         // of this radius.
         point_radius: if gpu.traced {
