@@ -65,16 +65,19 @@ fn visibility(i: u32, local: vec3<f32>, d: f32, cos_x: f32, x: vec3<f32>, n: vec
 }
 
 // A traced texel against the receiver at `x` (normal `n`, distance `d`): whether it is nearer than the
-// far side of the texel's first occluder (x), and whether the point the texel's centre ray met lies in
-// the receiver's plane (y). src/vpl/generate.rs, traced_test, is its CPU twin.
+// far side of the texel's first occluder (x), and, when it is not, whether the point the texel's centre
+// ray met lies in the receiver's plane (y). src/vpl/generate.rs, traced_test, is its CPU twin.
 fn traced_test(stored: u32, vpl: Vpl, t: vec2<u32>, x: vec3<f32>, n: vec3<f32>, d: f32) -> vec2<bool> {
     if stored == 0u {
         return vec2(true, false);
     }
     let depths = unpack2x16float(stored);
+    if d <= depths.x + u.ism_bias * d {
+        return vec2(true, false);
+    }
     let direction = basis(vpl.normal.xyz) * paraboloid_direction(t, u.ism_resolution);
     let offset = vpl.position.xyz + direction * depths.y - x;
-    return vec2(d <= depths.x + u.ism_bias * d, abs(dot(offset, n)) <= u.plane_tolerance * length(offset));
+    return vec2(false, abs(dot(offset, n)) <= u.plane_tolerance * length(offset));
 }
 
 @fragment

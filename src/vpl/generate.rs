@@ -587,15 +587,18 @@ pub const TRACED_PLANE_TOLERANCE: f32 = 0.05;
 
 /// A traced texel (`word`, centre ray `direction`) against the receiver `x` (normal `n`) of VPL
 /// `vpl_position`: whether the receiver is nearer than the far side of the first occluder (with
-/// `bias · d`), and whether the point the centre ray met lies in the receiver's plane. The CPU twin of
-/// `traced_test` in `shaders/vpl/gather.wgsl`.
+/// `bias · d`), and, when it is not, whether the point the centre ray met lies in the receiver's plane.
+/// The CPU twin of `traced_test` in `shaders/vpl/gather.wgsl`.
 pub fn traced_test(word: u32, vpl_position: Vec3, direction: Vec3, x: Vec3, n: Vec3, bias: f32) -> (bool, bool) {
     let Some((far, first)) = decode_traced_texel(word) else {
         return (true, false);
     };
     let d = (x - vpl_position).length();
+    if d <= far + bias * d {
+        return (true, false);
+    }
     let offset = vpl_position + direction * first - x;
-    (d <= far + bias * d, offset.dot(n).abs() <= TRACED_PLANE_TOLERANCE * offset.length())
+    (false, offset.dot(n).abs() <= TRACED_PLANE_TOLERANCE * offset.length())
 }
 
 /// The gather's visibility of a receiver through a traced map's 2×2 texels `taps` (word, centre ray,
