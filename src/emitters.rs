@@ -299,21 +299,10 @@ mod tests {
         }
     }
 
-    /// The twelve triangles of the box `lo..hi`, wound to face outwards.
+    /// The twelve triangles of Bevy's cuboid `lo..hi` (wound to face outwards).
     fn closed_box(lo: Vec3, hi: Vec3, material: u32) -> Vec<InputTriangle> {
-        let corner = |i: usize| Vec3::new(if i & 1 == 0 { lo.x } else { hi.x }, if i & 2 == 0 { lo.y } else { hi.y }, if i & 4 == 0 { lo.z } else { hi.z });
-        let centre = (lo + hi) / 2.0;
-        // Each face as four corners around it; the winding is fixed below to face away from the centre.
-        let faces = [[0, 1, 3, 2], [4, 5, 7, 6], [0, 1, 5, 4], [2, 3, 7, 6], [0, 2, 6, 4], [1, 3, 7, 5]];
-        let mut triangles = Vec::new();
-        for face in faces {
-            let [a, b, c, d] = face.map(corner);
-            let outwards = (b - a).cross(c - a).dot((a + c) / 2.0 - centre) > 0.0;
-            let (b, d) = if outwards { (b, d) } else { (d, b) };
-            triangles.push(InputTriangle::flat([a, b, c], material));
-            triangles.push(InputTriangle::flat([a, c, d], material));
-        }
-        triangles
+        let mesh = Mesh::from(Cuboid::from_corners(lo, hi));
+        crate::scene::mesh_triangles(&mesh, &GlobalTransform::from_translation((lo + hi) / 2.0), material).expect("mesh")
     }
 
     #[test]

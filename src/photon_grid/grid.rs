@@ -346,8 +346,8 @@ pub struct TraceParams {
 /// A source of photons with its emitted flux (lumens per channel).
 enum Source<'a> {
     Light(SnapshotLight),
-    /// An emissive triangle (snapshot index).
-    Emitter(u32),
+    /// An emissive triangle (snapshot index) and its open faces ([`crate::scene::MeshGeometry::open_sides`]).
+    Emitter(u32, u8),
     /// The environment map and its mean radiance.
     Environment(&'a Environment, Vec3),
 }
@@ -404,8 +404,8 @@ pub fn trace_photons(
         let area = triangle_area(&tri);
         // Two-sided Lambertian emitter: π L_e A from each open face (a face inside its own closed mesh
         // emits nothing that leaves it, and its photons would be stored as light leaving the emitter).
-        let faces = instance.open_sides(local).count_ones() as f32;
-        sources.push((Source::Emitter(i), emission.max(Vec3::ZERO) * (faces * PI * area)));
+        let open = instance.open_sides(local);
+        sources.push((Source::Emitter(i, open), emission.max(Vec3::ZERO) * (open.count_ones() as f32 * PI * area)));
     }
     if let Some(env) = environment {
         let mean = (0..256).map(|i| env.radiance(fibonacci_sphere(i, 256))).sum::<Vec3>() / 256.0;
@@ -521,7 +521,7 @@ fn emit(
             let d = direction.normalize_or(Vec3::NEG_Y);
             Some((disc(d, rng), d, share, None))
         }
-        Source::Emitter(i) => {
+        Source::Emitter(i, open) => {
             let tri = snapshot.triangle(i);
             let u = uniform2(rng);
             let Vec2 { x: a, y: b } = crate::sampling::uniform_triangle(u);
@@ -530,8 +530,7 @@ fn emit(
             if n == Vec3::ZERO {
                 return None;
             }
-            let (instance, local) = snapshot.locate(i);
-            n = match instance.open_sides(local) {
+            n = match open {
                 OPEN_FRONT => n,
                 OPEN_BACK => -n,
                 _ if rng.random::<bool>() => -n,

@@ -426,7 +426,8 @@ impl MeshGeometry {
     /// a closed box are not open: light they emit never leaves the box. A face is closed when most of five
     /// rays leaving it (along its normal and tilted 45° four ways) first meet the back of another triangle
     /// of the mesh; a single sheet, an open shell and a mesh with inverted winding keep both sides open.
-    /// Computed for all triangles on the first call (ten rays each through the mesh's own BVH) and kept.
+    /// Computed for all triangles on the first call (ten rays each through the mesh's own BVH, spread over
+    /// the cores) and kept: once per mesh asset, and only for meshes something asks about (emissive ones).
     pub fn open_sides(&self, i: usize) -> u8 {
         self.open_sides.get_or_init(|| self.find_open_sides()).get(i).copied().unwrap_or(OPEN_FRONT | OPEN_BACK)
     }
@@ -443,8 +444,9 @@ impl MeshGeometry {
                 && self.attributes[hit.primitive_id as usize].geometric_normal.dot(direction) > 0.0
         };
         let tilt = std::f32::consts::FRAC_1_SQRT_2;
+        use rayon::prelude::*;
         self.triangles
-            .iter()
+            .par_iter()
             .zip(&self.attributes)
             .map(|(t, a)| {
                 let centre = from_bvh(t.v0 + t.v1 + t.v2) / 3.0;
@@ -566,14 +568,14 @@ impl SnapshotInstance {
         }
     }
 
-    /// World-space unit geometric and vertex normals of local triangle `i` (what a hit needs, without the
-    /// vertices and area of [`SnapshotInstance::attributes`]).
     /// [`MeshGeometry::open_sides`] of local triangle `i`; the front is the side of its world geometric
     /// normal ([`SnapshotInstance::triangle`]'s winding), mirrored or not.
     pub fn open_sides(&self, i: usize) -> u8 {
         self.geometry.open_sides(i)
     }
 
+    /// World-space unit geometric and vertex normals of local triangle `i` (what a hit needs, without the
+    /// vertices and area of [`SnapshotInstance::attributes`]).
     pub fn world_normals(&self, i: usize) -> (Vec3, [Vec3; 3]) {
         let a = &self.geometry.attributes[i];
         let n = |v: Vec3| (self.normal_matrix * v).try_normalize().unwrap_or(v);

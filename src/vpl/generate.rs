@@ -512,7 +512,7 @@ pub fn paraboloid_direction(normal: Vec3, side: u32, x: u32, y: u32) -> Option<V
 /// Ray-traced shadow maps: for every VPL, a `side`² paraboloid map of the distances, through each
 /// texel's centre, to the first occluder and to its far side ([`encode_traced_texel`]; 0 where nothing
 /// is there), VPL after VPL with `side²` words each. The gather tests receivers with
-/// [`traced_texel_lit`].
+/// [`traced_visibility`].
 ///
 /// Imperfect shadow maps splat a few thousand points per VPL: a wall thinner than the gaps between its
 /// points lets light through, and a generated two-room family showed it on most rooms lit next door (a
