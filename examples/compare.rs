@@ -5,7 +5,9 @@
 //! Prints the block relative RMSE (the headline number), the per-pixel relative RMSE, the energy ratio,
 //! the share of 4×4 blocks more than 50 % off and, with the `flip` feature, the mean FLIP error. The difference image maps `|a − r|` divided by the mean of
 //! the reference to black → blue → green → yellow → red at `S` (default 1.0); it goes beside the first
-//! image as `A.diff.png` unless `--diff` names it.
+//! image as `A.diff.png` unless `--diff` names it. `--blocks N` prints, for N × N pixel blocks, the ratio of
+//! the image's luminance to the reference's (one row of numbers per row of blocks): where a method is
+//! too dark or too bright.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -27,6 +29,9 @@ struct Cli {
     /// |a − r| / mean(r) that maps to red; positive
     #[arg(long, value_name = "S", default_value_t = 1.0, value_parser = positive)]
     scale: f32,
+    /// Print the luminance ratio image / reference per block of N × N pixels
+    #[arg(long, value_name = "N")]
+    blocks: Option<u32>,
 }
 
 fn positive(text: &str) -> Result<f32, String> {
@@ -46,7 +51,7 @@ fn main() -> ExitCode {
 fn run() -> Result<(), String> {
     use clap::Parser;
     // Bad flags: clap's message and status 2; --help: status 0.
-    let Cli { image: a_path, reference: r_path, diff, scale } = Cli::try_parse().unwrap_or_else(|e| e.exit());
+    let Cli { image: a_path, reference: r_path, diff, scale, blocks } = Cli::try_parse().unwrap_or_else(|e| e.exit());
     let a = HdrImage::read(&a_path).map_err(|e| e.to_string())?;
     let r = HdrImage::read(&r_path).map_err(|e| e.to_string())?;
 
@@ -64,6 +69,21 @@ fn run() -> Result<(), String> {
     match m.flip {
         Some(flip) => println!("mean FLIP        {flip:.4}"),
         None => println!("mean FLIP        (build with --features flip)"),
+    }
+
+    if let Some(n) = blocks.filter(|n| *n > 0) {
+        let luminance = |c: [f32; 3]| 0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2];
+        println!("luminance ratio per {n}×{n} block (image / reference; · where the reference is black or uncovered):");
+        for y in (0..r.height).step_by(n as usize) {
+            let row: Vec<String> = (0..r.width)
+                .step_by(n as usize)
+                .map(|x| match (a.region_mean(x, y, x + n, y + n), r.region_mean(x, y, x + n, y + n)) {
+                    (Some(av), Some(rv)) if luminance(rv) > 0.0 => format!("{:5.2}", luminance(av) / luminance(rv)),
+                    _ => "    ·".to_string(),
+                })
+                .collect();
+            println!("{}", row.join(" "));
+        }
     }
 
     let diff_path = diff.unwrap_or_else(|| bevy_diffuse_gi::headless::sibling(&a_path, "diff", "png"));
