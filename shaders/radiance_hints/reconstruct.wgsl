@@ -25,14 +25,13 @@
 #import bevy_diffuse_gi::rh_types::{PI, world_to_local, local_to_occupancy, sh_irradiance, cell_index}
 #import bevy_diffuse_gi::rh_sampling::{Trilinear, volume, trilinear_masked, occupancy_voxel, sh_at, load_sh}
 #import bevy_diffuse_gi::rh_occupancy::{first_hit_inclusive, first_hit_from}
+#import bevy_diffuse_gi::rh_masks::hint_lookup
 #import bevy_diffuse_gi::rh_packed::{Packed, PackedField, add_packed, add_packed_field, field_linear, field_nonlinear, sh_linear, sh_nonlinear}
 #import bevy_diffuse_gi::gi_frame::{target_pixel, world_at}
 
 @group(0) @binding(0) var<uniform> view: View;
 @group(0) @binding(1) var depth_texture: texture_depth_2d;
 @group(0) @binding(2) var gbuffer: texture_2d<u32>;
-// The hints each occupancy voxel may use (visibility.wgsl): 8 bits per voxel, 4 voxels per word.
-@group(2) @binding(1) var<storage, read> visibility: array<u32>;
 // Each hint's field in the compact irradiance form (rh_packed.wgsl), for SH order 2.
 @group(2) @binding(2) var<storage, read> packed: array<Packed>;
 
@@ -47,16 +46,6 @@ fn basis(n: vec3<f32>) -> mat3x3<f32> {
     let a = -1.0 / (s + n.z);
     let b = n.x * n.y * a;
     return mat3x3(vec3(1.0 + s * n.x * n.x * a, s * b, -s * n.x), vec3(b, s + n.y * n.y * a, -n.y), n);
-}
-
-// The eight hints around a position with the weights of the hints a lookup there may use: the prepared
-// mask of the occupancy voxel holding it (valid hints not hidden behind a surface; `visibility.wgsl`)
-// replaces the eight visibility marches of `rh_sampling::trilinear`.
-fn hint_lookup(local: vec3<f32>) -> Trilinear {
-    let v = occupancy_voxel(local);
-    let index = cell_index(v, volume.occupancy_resolution.xyz);
-    let mask = (visibility[index >> 2u] >> (8u * (index & 3u))) & 0xffu;
-    return trilinear_masked(local, mask, v);
 }
 
 // Rays of the near-field occlusion per pixel.

@@ -43,7 +43,8 @@ fn trilinear_from(world: vec3<f32>, skip: f32) -> Trilinear {
     let from_voxel = local_to_occupancy(volume, local);
     for (var i = 0u; i < 8u; i++) {
         usable[i] = select(0.0, 1.0, albedo[t.cells[i]].a >= 0.5);
-        if volume.occupancy_resolution.w != 0u && usable[i] > 0.0 && t.weights[i] > 0.0 {
+        // A skip past any segment in the volume (a lookup regardless of visibility) marches nothing.
+        if volume.occupancy_resolution.w != 0u && skip < 1.0e8 && usable[i] > 0.0 && t.weights[i] > 0.0 {
             let o = vec3<u32>(i & 1u, (i >> 1u) & 1u, (i >> 2u) & 1u);
             let hint = stencil_hint_occupancy(min(base + o, res - 1u));
             if first_hit_from(from_voxel, hint, volume.occupancy_resolution.xyz, skip) >= 0.0 {

@@ -310,8 +310,9 @@ impl Plugin for RadianceHintsPlugin {
             "radiance_hints/rh_packed.wgsl",
             include_str!("../../shaders/radiance_hints/rh_packed.wgsl"),
         );
+        let masks = crate::add_shader(app, "radiance_hints/rh_masks.wgsl", include_str!("../../shaders/radiance_hints/rh_masks.wgsl"));
         let mut shaders = shaders;
-        shaders.libraries.extend([occupancy, packed]);
+        shaders.libraries.extend([occupancy, packed, masks]);
         #[cfg(feature = "tools")]
         app.add_plugins(bevy::render::extract_resource::ExtractResourcePlugin::<dump::RhVolumeDump>::default());
         crate::method::build_method::<Self>(app);

@@ -159,8 +159,10 @@ pub struct RhPipelines {
     pub rsm_layout: BindGroupLayoutDescriptor,
     /// Group 3 of the injection with §8 occlusion: the camera's view and depth.
     pub depth_layout: BindGroupLayoutDescriptor,
-    /// Group 2 of the injection and the bounces: the occupancy bits (`rh_occupancy.wgsl`).
+    /// Group 2 of the injection and the visibility masks' pass: the occupancy bits (`rh_occupancy.wgsl`).
     pub occupancy_layout: BindGroupLayoutDescriptor,
+    /// Group 2 of the bounces: the occupancy bits and the visibility masks (`rh_masks.wgsl`).
+    pub bounce_occupancy_layout: BindGroupLayoutDescriptor,
     /// Group 1 of every pass that reads a volume (`rh_sampling.wgsl`): uniform, SH, distances, albedo.
     pub sample_layout: BindGroupLayoutDescriptor,
     /// Group 0 of a bounce: delta out, sum, partial energies.
@@ -196,6 +198,10 @@ impl FromWorld for RhPipelines {
             occupancy_layout: BindGroupLayoutDescriptor::new(
                 "diffuse_gi_rh_occupancy_layout",
                 &BindGroupLayoutEntries::single(ShaderStages::COMPUTE | ShaderStages::FRAGMENT, ro()),
+            ),
+            bounce_occupancy_layout: BindGroupLayoutDescriptor::new(
+                "diffuse_gi_rh_bounce_occupancy_layout",
+                &BindGroupLayoutEntries::sequential(compute, (ro(), ro())),
             ),
             rsm_layout: BindGroupLayoutDescriptor::new(
                 "diffuse_gi_rh_rsm_layout",
@@ -304,7 +310,7 @@ impl SpecializedComputePipeline for RhPipelines {
                     vec![
                         self.bounce_output_layout.clone(),
                         self.sample_layout.clone(),
-                        self.occupancy_layout.clone(),
+                        self.bounce_occupancy_layout.clone(),
                     ],
                     &self.shaders.bounce,
                     "bounce",
@@ -464,6 +470,8 @@ pub struct RhVolumePipelines {
 pub struct RhVolumeBindGroups {
     pub inject_output: BindGroup,
     pub occupancy: BindGroup,
+    /// Group 2 of the bounces: occupancy and visibility masks.
+    pub bounce_occupancy: BindGroup,
     /// Reading the displayed result (reconstruction, export, debug views).
     pub sample_result: BindGroup,
     /// For extra bounce `k`: output group (writes `delta[k % 2]`) and sample group (reads the other).
@@ -985,6 +993,11 @@ pub(crate) fn prepare_rh_bind_groups(
                 "diffuse_gi_rh_occupancy_bind_group",
                 &layout(&pipelines.occupancy_layout),
                 &BindGroupEntries::single(v.occupancy.as_entire_binding()),
+            ),
+            bounce_occupancy: device.create_bind_group(
+                "diffuse_gi_rh_bounce_occupancy_bind_group",
+                &layout(&pipelines.bounce_occupancy_layout),
+                &BindGroupEntries::sequential((v.occupancy.as_entire_binding(), v.visibility.as_entire_binding())),
             ),
             sample_result: sample(&v.result),
             // Bounce k writes delta[k % 2] and reads delta[(k − 1) % 2].

@@ -170,7 +170,7 @@ fn update_volumes(
                     pass.set_pipeline(bounce);
                     pass.set_bind_group(0, &groups.bounce[1].0, &[]);
                     pass.set_bind_group(1, &groups.sample_result, &[v.uniform_offsets[1]]);
-                    pass.set_bind_group(2, &groups.occupancy, &[]);
+                    pass.set_bind_group(2, &groups.bounce_occupancy, &[]);
                     pass.dispatch_workgroups(v.workgroups, 1, 1);
                 }
                 for k in (1..=v.settings.extra_bounces).filter(|_| !v.motion_update) {
@@ -179,7 +179,7 @@ fn update_volumes(
                     pass.set_pipeline(bounce);
                     pass.set_bind_group(0, output, &[]);
                     pass.set_bind_group(1, sample, &[offset]);
-                    pass.set_bind_group(2, &groups.occupancy, &[]);
+                    pass.set_bind_group(2, &groups.bounce_occupancy, &[]);
                     // Dispatched with zero workgroups once a bounce added too little (see decide.wgsl).
                     pass.dispatch_workgroups_indirect(&v.args, 12 * (k as u64 - 1));
                     pass.set_pipeline(decide);
