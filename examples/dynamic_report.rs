@@ -5,7 +5,7 @@
 //! cargo run --release --features tools --example dynamic_report -- [--section NAME]... [--rounds N] [--docs docs/dynamic.md]
 //! ```
 //! Sections: `motion` (all six methods while things move: frame time, hitches, main-thread cost, and
-//! how long the CPU methods' background work takes to catch up), `cost` (frame-time ratios to the frame without GI, at 256² and 512²), `triangles` (one moving
+//! how long the CPU methods' background work takes to catch up), `cost` (frame-time ratios to the frame without GI, at 256² and 512²), `triangles` (every method with one moving
 //! mesh in scenes of 1 k, 50 k and 500 k triangles), `snapshot` (the scene snapshot's main-thread update,
 //! without a renderer), `accuracy` (error while a light and a box move, against the ground truth of each
 //! frame's pose, and the recovery after the motion stops), `stability` (frame-to-frame change). Each prints
@@ -286,39 +286,92 @@ fn motion(rounds: usize) -> Result<String, String> {
     Ok(out)
 }
 
+/// Frames one mesh moves in a `triangles` run before the motion stops, and the frames timed at its end.
+const TRIANGLES_MOTION: u32 = 48;
+const TRIANGLES_TIMED: usize = 16;
+
+/// Every method with object 0 (1 280 triangles) moving in `dynamic` at 256², with 1 k, 50 k and 500 k
+/// static triangles added (`--extra-triangles`): the still frame and the moving frame against the frame
+/// without GI of the same scene, the worst moving frame against the median (a hitch), the main thread's
+/// median and worst milliseconds while moving, and for the CPU methods the frames their background work
+/// took after the motion stopped to catch up with the final pose.
 fn triangles(rounds: usize) -> Result<String, String> {
+    const SIZE: u32 = 256;
     let mut out = String::from(
-        "| scene triangles | none (ms) | rh still (ms) | rh, one mesh moving (ms) | × none | moving − still (ms) | main thread (ms) |\n\
-         |---|---|---|---|---|---|---|\n",
+        "| scene triangles | method | still × none | one mesh moving × none | worst × median | moving − still (ms) | main thread median / worst (ms) | frames to catch up |\n\
+         |---|---|---|---|---|---|---|---|\n",
     );
+    let mut nones = Vec::new();
     for extra in [1_000u32, 50_000, 500_000] {
-        let (mut none, mut still, mut moving, mut main) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        let mut none = Vec::new();
+        let mut rows: Vec<Vec<[f64; 6]>> = vec![Vec::new(); GiMethod::ALL.len()];
         for _ in 0..rounds {
-            let mut o = dynamic(HeadlessMethod::None, 256);
+            let mut o = dynamic(HeadlessMethod::None, SIZE);
             o.extra_triangles = extra;
             none.push(common::frame_ms(&render(&o)?, TIMED_FRAMES));
-            o.method = HeadlessMethod::Gi(GiMethod::RadianceHints);
-            o.frames = 48;
-            still.push(common::frame_ms(&render(&o)?, TIMED_FRAMES));
-            o.frames = TIMED_RUN;
-            o.animate_meshes = 1;
-            let r = render(&o)?;
-            moving.push(common::frame_ms(&r, TIMED_FRAMES));
-            main.push(main_ms(&r));
+            for (m, method) in GiMethod::ALL.iter().enumerate() {
+                let mut still = dynamic(HeadlessMethod::Gi(*method), SIZE);
+                still.extra_triangles = extra;
+                // Long enough that Radiance Hints' volume stopped updating; the CPU methods' first
+                // solution is waited for.
+                still.frames = 48;
+                still.wait_background = Some(MOTION_WAIT_S);
+                let still = common::frame_ms(&render(&still)?, TIMED_FRAMES);
+                let mut moving = dynamic(HeadlessMethod::Gi(*method), SIZE);
+                moving.extra_triangles = extra;
+                moving.animate_meshes = 1;
+                moving.frames = TRIANGLES_MOTION;
+                moving.stop_animation_at = Some(TRIANGLES_MOTION as f32);
+                moving.wait_background = Some(MOTION_WAIT_S);
+                let r = render(&moving)?;
+                let frames = common::frame_intervals(&r);
+                let motion_end = frames.len().min(TRIANGLES_MOTION as usize);
+                let timed = &frames[motion_end.saturating_sub(TRIANGLES_TIMED)..motion_end];
+                let main: Vec<f64> =
+                    r.sidecar["main_thread_ms"].as_array().map(|a| a.iter().filter_map(|v| v.as_f64()).collect()).unwrap_or_default();
+                let main = &main[main.len().min(motion_end).saturating_sub(TRIANGLES_TIMED)..main.len().min(motion_end)];
+                let wait = r.sidecar["background_wait_frames"].as_f64().unwrap_or(f64::NAN);
+                let caught_up =
+                    if r.sidecar["background_timed_out"] == true { f64::INFINITY } else { (wait - headless::SETTLE_READBACKS as f64).max(0.0) };
+                rows[m].push([
+                    still,
+                    common::median(timed),
+                    timed.iter().copied().fold(0.0, f64::max),
+                    common::median(main),
+                    main.iter().copied().fold(0.0, f64::max),
+                    caught_up,
+                ]);
+            }
         }
-        let (n, s, m) = (common::median(&none), common::median(&still), common::median(&moving));
-        out += &format!(
-            "| {} | {n:.0} | {s:.0} | {m:.0} | {:.1} | {:.0} | {:.2} |\n",
-            bevy_diffuse_gi::scenes::dynamic::dynamic_triangles(extra),
-            m / n,
-            m - s,
-            common::median(&main)
-        );
+        let n = common::median(&none);
+        nones.push(format!("{n:.0}"));
+        let triangles = bevy_diffuse_gi::scenes::dynamic::dynamic_triangles(extra);
+        for (m, method) in GiMethod::ALL.iter().enumerate() {
+            let col = |i: usize| common::median(&rows[m].iter().map(|r| r[i]).collect::<Vec<_>>());
+            let catch = col(5);
+            out += &format!(
+                "| {triangles} | {} | {:.1} | {:.1} | {:.1} | {:.0} | {:.2} / {:.2} | {} |\n",
+                method.name(),
+                col(0) / n,
+                col(1) / n,
+                col(2) / col(1),
+                col(1) - col(0),
+                col(3),
+                col(4),
+                if catch.is_infinite() { format!("not within {MOTION_WAIT_S} s") } else { format!("{catch:.0}") },
+            );
+        }
     }
+    out += &format!(
+        "\nFrame without GI: {} ms at the three sizes (median of {rounds} run(s)). The moving frames are the last \
+         {TRIANGLES_TIMED} of a motion of {TRIANGLES_MOTION} frames; \"frames to catch up\" counts the frames after \
+         the motion stopped until the CPU methods' background work had reached the final pose (0 for the methods \
+         with none).\n",
+        nones.join(" / ")
+    );
     Ok(out)
 }
 
-/// The snapshot alone (no renderer): one 1 280-triangle sphere moving among static spheres.
 fn snapshot() -> String {
     let mut out = String::from(
         "| static triangles | instances | full build (ms) | one mesh moving: update (ms, median of 50 frames) |\n|---|---|---|---|\n",
