@@ -145,11 +145,27 @@ fn dynamic(method: HeadlessMethod, size: u32) -> HeadlessOptions {
     }
 }
 
+/// The plugin's main-thread milliseconds of every frame of a run.
+fn main_thread_series(report: &HeadlessReport) -> Vec<f64> {
+    report.sidecar["main_thread_ms"].as_array().map(|a| a.iter().filter_map(|v| v.as_f64()).collect()).unwrap_or_default()
+}
+
 /// Median main-thread milliseconds of the plugin over the last frames of a run.
 fn main_ms(report: &HeadlessReport) -> f64 {
-    let v: Vec<f64> =
-        report.sidecar["main_thread_ms"].as_array().map(|a| a.iter().filter_map(|v| v.as_f64()).collect()).unwrap_or_default();
+    let v = main_thread_series(report);
     common::median(&v[v.len().saturating_sub(TIMED_FRAMES)..])
+}
+
+/// Frames a `--wait-background` run rendered after its motion stopped until the CPU methods' background
+/// work had caught up (∞ when it had not within the wait).
+fn caught_up(report: &HeadlessReport) -> f64 {
+    let wait = report.sidecar["background_wait_frames"].as_f64().unwrap_or(f64::NAN);
+    if report.sidecar["background_timed_out"] == true { f64::INFINITY } else { (wait - headless::SETTLE_READBACKS as f64).max(0.0) }
+}
+
+/// A [`caught_up`] count for a table.
+fn frames_text(frames: f64) -> String {
+    if frames.is_infinite() { format!("not within {MOTION_WAIT_S} s") } else { format!("{frames:.0}") }
 }
 
 /// Motion cases: (name, light moves, meshes moving).
@@ -214,10 +230,6 @@ fn motion(rounds: usize) -> Result<String, String> {
     );
     let mut none = Vec::new();
     let mut rows: Vec<Vec<[f64; 6]>> = vec![Vec::new(); GiMethod::ALL.len() * cases.len()];
-    let caught_up = |r: &HeadlessReport| {
-        let wait = r.sidecar["background_wait_frames"].as_f64().unwrap_or(f64::NAN);
-        if r.sidecar["background_timed_out"] == true { f64::INFINITY } else { (wait - headless::SETTLE_READBACKS as f64).max(0.0) }
-    };
     for _ in 0..rounds {
         none.push(common::frame_ms(&render(&dynamic(HeadlessMethod::None, SIZE))?, MOTION_TIMED));
         for (m, method) in GiMethod::ALL.iter().enumerate() {
@@ -240,8 +252,7 @@ fn motion(rounds: usize) -> Result<String, String> {
                 let frames = common::frame_intervals(&long);
                 let motion_end = frames.len().min((MOTION_WARMUP + MOTION_FRAMES) as usize);
                 let moving = &frames[motion_end.saturating_sub(MOTION_TIMED)..motion_end];
-                let main: Vec<f64> =
-                    long.sidecar["main_thread_ms"].as_array().map(|a| a.iter().filter_map(|v| v.as_f64()).collect()).unwrap_or_default();
+                let main = main_thread_series(&long);
                 let main = &main[..main.len().min(motion_end)];
                 rows[m * cases.len() + c].push([
                     common::median(moving),
@@ -255,7 +266,6 @@ fn motion(rounds: usize) -> Result<String, String> {
         }
     }
     let base = common::median(&none);
-    let frames_text = |f: f64| if f.is_infinite() { format!("not within {MOTION_WAIT_S} s") } else { format!("{f:.0}") };
     for (m, method) in GiMethod::ALL.iter().enumerate() {
         for (c, (case, ..)) in cases.iter().enumerate() {
             let row = &rows[m * cases.len() + c];
@@ -327,19 +337,15 @@ fn triangles(rounds: usize) -> Result<String, String> {
                 let frames = common::frame_intervals(&r);
                 let motion_end = frames.len().min(TRIANGLES_MOTION as usize);
                 let timed = &frames[motion_end.saturating_sub(TRIANGLES_TIMED)..motion_end];
-                let main: Vec<f64> =
-                    r.sidecar["main_thread_ms"].as_array().map(|a| a.iter().filter_map(|v| v.as_f64()).collect()).unwrap_or_default();
+                let main = main_thread_series(&r);
                 let main = &main[main.len().min(motion_end).saturating_sub(TRIANGLES_TIMED)..main.len().min(motion_end)];
-                let wait = r.sidecar["background_wait_frames"].as_f64().unwrap_or(f64::NAN);
-                let caught_up =
-                    if r.sidecar["background_timed_out"] == true { f64::INFINITY } else { (wait - headless::SETTLE_READBACKS as f64).max(0.0) };
                 rows[m].push([
                     still,
                     common::median(timed),
                     timed.iter().copied().fold(0.0, f64::max),
                     common::median(main),
                     main.iter().copied().fold(0.0, f64::max),
-                    caught_up,
+                    caught_up(&r),
                 ]);
             }
         }
@@ -348,7 +354,6 @@ fn triangles(rounds: usize) -> Result<String, String> {
         let triangles = bevy_diffuse_gi::scenes::dynamic::dynamic_triangles(extra);
         for (m, method) in GiMethod::ALL.iter().enumerate() {
             let col = |i: usize| common::median(&rows[m].iter().map(|r| r[i]).collect::<Vec<_>>());
-            let catch = col(5);
             out += &format!(
                 "| {triangles} | {} | {:.1} | {:.1} | {:.1} | {:.0} | {:.2} / {:.2} | {} |\n",
                 method.name(),
@@ -358,7 +363,7 @@ fn triangles(rounds: usize) -> Result<String, String> {
                 col(1) - col(0),
                 col(3),
                 col(4),
-                if catch.is_infinite() { format!("not within {MOTION_WAIT_S} s") } else { format!("{catch:.0}") },
+                frames_text(col(5)),
             );
         }
     }
