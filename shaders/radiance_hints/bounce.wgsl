@@ -60,103 +60,110 @@ fn bounce(
         var rng = pcg(index ^ pcg(volume.seed));
         var acc: Sh;
         var weight_sum = 0.0;
+        var scale = 0.0;
+        // While things move, one workgroup in `motion_period` recomputes its bounce this update; the
+        // others add the one they kept in `out_delta` (`RadianceHintsVolume::motion_bounce_period`).
+        // Whole workgroups, so that the skipped ones cost nothing.
+        let refresh = (wid.x + volume.motion_phase) % max(volume.motion_period, 1u) == 0u;
+        if refresh {
 #ifndef SECONDARY_PAPER
-        // Directions through the whole volume: its diagonal in world units.
-        let reach = length((volume.world_from_local * vec4(1.0, 1.0, 1.0, 0.0)).xyz);
-        // The rays start off the voxels of the surfaces the hint sits beside (see `free_start`).
-        let occ_res = volume.occupancy_resolution.xyz;
-        let a = free_start(local_to_occupancy(volume, world_to_local(volume, p_n)), occ_res);
-        let start = local_to_world(volume, a / vec3<f32>(occ_res) - 0.5);
-        let n_samples = volume.secondary_samples;
-        // Stratified over the sphere: a √N × √N grid of (cos θ, φ) cells, jittered.
-        let side = max(u32(sqrt(f32(n_samples))), 1u);
-        let inside_solid = albedo[index].a < 0.5;
-        for (var j = 0u; j < select(n_samples, 0u, inside_solid); j++) {
-            let cell_uv = vec2(f32(j % side), f32((j / side) % side));
-            let u = select((cell_uv + vec2(rand(&rng), rand(&rng))) / f32(side), vec2(rand(&rng), rand(&rng)), j >= side * side);
-            let omega = uniform_sphere(u);
-            let b = local_to_occupancy(volume, world_to_local(volume, start + omega * reach));
-            let found = first_hit_face(a, b, occ_res, 0.0, 0.0);
-            let t = found.w;
-            if t < 0.0 {
-                continue;
+            // Directions through the whole volume: its diagonal in world units.
+            let reach = length((volume.world_from_local * vec4(1.0, 1.0, 1.0, 0.0)).xyz);
+            // The rays start off the voxels of the surfaces the hint sits beside (see `free_start`).
+            let occ_res = volume.occupancy_resolution.xyz;
+            let a = free_start(local_to_occupancy(volume, world_to_local(volume, p_n)), occ_res);
+            let start = local_to_world(volume, a / vec3<f32>(occ_res) - 0.5);
+            let n_samples = volume.secondary_samples;
+            // Stratified over the sphere: a √N × √N grid of (cos θ, φ) cells, jittered.
+            let side = max(u32(sqrt(f32(n_samples))), 1u);
+            let inside_solid = albedo[index].a < 0.5;
+            for (var j = 0u; j < select(n_samples, 0u, inside_solid); j++) {
+                let cell_uv = vec2(f32(j % side), f32((j / side) % side));
+                let u = select((cell_uv + vec2(rand(&rng), rand(&rng))) / f32(side), vec2(rand(&rng), rand(&rng)), j >= side * side);
+                let omega = uniform_sphere(u);
+                let b = local_to_occupancy(volume, world_to_local(volume, start + omega * reach));
+                let found = first_hit_face(a, b, occ_res, 0.0, 0.0);
+                let t = found.w;
+                if t < 0.0 {
+                    continue;
+                }
+                // The reflector's normal: the face of the voxel the ray entered (exact for axis-aligned
+                // surfaces), in world space, facing the hint.
+                let face_normal = normalize((volume.world_from_local * vec4(found.xyz, 0.0)).xyz);
+                let hit = start + omega * (reach * t);
+                // The reflector's light: the field half a cell in front of it along its normal, where a surface
+                // facing that way would be lit as the reflector is. (Half a cell diagonal back along the ray,
+                // as this read before, lies behind the hint when the hint is closer to the wall than that,
+                // and often under the floor for a hint just above it: a hint 0.2 m above `open_field`'s
+                // ground, 0.5 m from a wall, got a twentieth of the light that wall sends down.) Where that
+                // point sees no hint (a corner), the point halfway back to the hint along the ray.
+                let cell_along = dot(abs(found.xyz), volume.cell.xyz);
+                // The prepared mask of the point's voxel (`rh_masks::hint_lookup`) stands for the eight
+                // visibility marches of `trilinear_from(front, 0.0)`: the same test from the voxel's centre,
+                // surfaces within a voxel length of it not counted. (A march that skipped those let the next
+                // room's hints in where a grazing hit by a junction puts the point beside a wall: specks on
+                // `cellar` at the high preset. The mask shows none there: no 4×4 block moved by more than
+                // 6 %.) On `cornell` with a moving light the marches of this lookup and the albedo's below
+                // were a third of the frame; the images moved by < 0.005 block RMSE (`cellar` high 0.1315 →
+                // 0.135), the generated rooms by ±0.005.
+                let front = hit + face_normal * (0.5 * cell_along);
+                var lookup = hint_lookup(world_to_local(volume, front));
+                if !lookup.found {
+                    lookup = trilinear_from(mix(hit, p_n, 0.5), 0.0);
+                }
+                var rho = vec3(1.0);
+                if volume.albedo_volume != 0u {
+                    // The albedo of the cells around the reflector, those behind a surface as seen from it
+                    // left out (the next room's wall colour beyond a thin wall). Where every one is (a hit
+                    // in a corner, on a voxel face whose own cells lie behind the wall), the cells' albedo
+                    // regardless of visibility: this lookup used to find nothing there and reflect nothing,
+                    // which lost a tenth of every bounce's light in a generated room (room_3's field 0.89 →
+                    // 1.00 of the traced one).
+                    // The hit voxel's prepared mask for `trilinear(hit)`'s marches (the same skip of a voxel).
+                    let at_hit = hint_lookup(world_to_local(volume, hit + omega * (0.01 * cell_along)));
+                    rho = select(albedo_at(trilinear_from(hit, 1.0e9)), albedo_at(at_hit), at_hit.found);
+                }
+                let radiance = rho / PI * sh_irradiance(sh_at(lookup), face_normal);
+                sh_add(&acc, omega, radiance);
             }
-            // The reflector's normal: the face of the voxel the ray entered (exact for axis-aligned
-            // surfaces), in world space, facing the hint.
-            let face_normal = normalize((volume.world_from_local * vec4(found.xyz, 0.0)).xyz);
-            let hit = start + omega * (reach * t);
-            // The reflector's light: the field half a cell in front of it along its normal, where a surface
-            // facing that way would be lit as the reflector is. (Half a cell diagonal back along the ray,
-            // as this read before, lies behind the hint when the hint is closer to the wall than that,
-            // and often under the floor for a hint just above it: a hint 0.2 m above `open_field`'s
-            // ground, 0.5 m from a wall, got a twentieth of the light that wall sends down.) Where that
-            // point sees no hint (a corner), the point halfway back to the hint along the ray.
-            let cell_along = dot(abs(found.xyz), volume.cell.xyz);
-            // The prepared mask of the point's voxel (`rh_masks::hint_lookup`) stands for the eight
-            // visibility marches of `trilinear_from(front, 0.0)`: the same test from the voxel's centre,
-            // surfaces within a voxel length of it not counted. (A march that skipped those let the next
-            // room's hints in where a grazing hit by a junction puts the point beside a wall: specks on
-            // `cellar` at the high preset. The mask shows none there: no 4×4 block moved by more than
-            // 6 %.) On `cornell` with a moving light the marches of this lookup and the albedo's below
-            // were a third of the frame; the images moved by < 0.005 block RMSE (`cellar` high 0.1315 →
-            // 0.135), the generated rooms by ±0.005.
-            let front = hit + face_normal * (0.5 * cell_along);
-            var lookup = hint_lookup(world_to_local(volume, front));
-            if !lookup.found {
-                lookup = trilinear_from(mix(hit, p_n, 0.5), 0.0);
-            }
-            var rho = vec3(1.0);
-            if volume.albedo_volume != 0u {
-                // The albedo of the cells around the reflector, those behind a surface as seen from it
-                // left out (the next room's wall colour beyond a thin wall). Where every one is (a hit
-                // in a corner, on a voxel face whose own cells lie behind the wall), the cells' albedo
-                // regardless of visibility: this lookup used to find nothing there and reflect nothing,
-                // which lost a tenth of every bounce's light in a generated room (room_3's field 0.89 →
-                // 1.00 of the traced one).
-                // The hit voxel's prepared mask for `trilinear(hit)`'s marches (the same skip of a voxel).
-                let at_hit = hint_lookup(world_to_local(volume, hit + omega * (0.01 * cell_along)));
-                rho = select(albedo_at(trilinear_from(hit, 1.0e9)), albedo_at(at_hit), at_hit.found);
-            }
-            let radiance = rho / PI * sh_irradiance(sh_at(lookup), face_normal);
-            sh_add(&acc, omega, radiance);
-        }
-        let scale = 4.0 * PI / f32(max(n_samples, 1u));
+            scale = 4.0 * PI / f32(max(n_samples, 1u));
 #else
-        for (var j = 0u; j < volume.secondary_samples; j++) {
-            let offset = uniform_sphere(vec2(rand(&rng), rand(&rng))) * (volume.r_max * pow(rand(&rng), 1.0 / 3.0));
-            let p_j = p_n + offset;
-            if !inside_volume(p_j) {
-                continue;
+            for (var j = 0u; j < volume.secondary_samples; j++) {
+                let offset = uniform_sphere(vec2(rand(&rng), rand(&rng))) * (volume.r_max * pow(rand(&rng), 1.0 / 3.0));
+                let p_j = p_n + offset;
+                if !inside_volume(p_j) {
+                    continue;
+                }
+                let lookup = trilinear(p_j);
+                let dist_j = distances_at(lookup);
+                // Eq. 11, distances normalised by r_max.
+                let d = length(offset) / volume.r_max;
+                let near = dist_n.x + dist_j.x;
+                let far = dist_n.y + dist_j.y;
+                let visibility = 1.0 - clamp((d - near) / max(far - near, 1e-4), 0.0, 1.0);
+                // Eq. 9 (before normalisation).
+                let confidence = max(1.0 - dist_j.x, 0.0);
+                let w = visibility * confidence;
+                if w <= 0.0 {
+                    continue;
+                }
+                let omega = offset / max(length(offset), 1e-6);
+                var rho = vec3(1.0);
+                if volume.albedo_volume != 0u {
+                    rho = albedo_at(lookup);
+                }
+                // Eq. 10: radiance leaving p_j towards p_n.
+                let radiance = rho / PI * sh_irradiance(sh_at(lookup), -omega);
+                sh_add(&acc, omega, w * radiance);
+                weight_sum += w;
             }
-            let lookup = trilinear(p_j);
-            let dist_j = distances_at(lookup);
-            // Eq. 11, distances normalised by r_max.
-            let d = length(offset) / volume.r_max;
-            let near = dist_n.x + dist_j.x;
-            let far = dist_n.y + dist_j.y;
-            let visibility = 1.0 - clamp((d - near) / max(far - near, 1e-4), 0.0, 1.0);
-            // Eq. 9 (before normalisation).
-            let confidence = max(1.0 - dist_j.x, 0.0);
-            let w = visibility * confidence;
-            if w <= 0.0 {
-                continue;
-            }
-            let omega = offset / max(length(offset), 1e-6);
-            var rho = vec3(1.0);
-            if volume.albedo_volume != 0u {
-                rho = albedo_at(lookup);
-            }
-            // Eq. 10: radiance leaving p_j towards p_n.
-            let radiance = rho / PI * sh_irradiance(sh_at(lookup), -omega);
-            sh_add(&acc, omega, w * radiance);
-            weight_sum += w;
-        }
-        let scale = select(0.0, 4.0 * PI / weight_sum, weight_sum > 0.0);
+            scale = select(0.0, 4.0 * PI / weight_sum, weight_sum > 0.0);
 #endif
+        }
         let base = index * SH_FLOATS;
         for (var i = 0u; i < FIELD_TERMS; i++) {
-            let c = finite3(acc.c[i] * scale);
             let b = base + 3u * i;
+            let c = select(vec3(out_delta[b], out_delta[b + 1u], out_delta[b + 2u]), finite3(acc.c[i] * scale), refresh);
             out_delta[b] = c.x;
             out_delta[b + 1u] = c.y;
             out_delta[b + 2u] = c.z;

@@ -68,6 +68,10 @@ struct RhVolume {
     occupancy_resolution: vec4<u32>,
     // Range of the reconstruction's near-field occlusion in metres (0: off).
     near_field_range: f32,
+    // While things move: the bounce pass recomputes the workgroups w with (w + motion_phase) %
+    // motion_period == 0 and the others add the bounce they kept (`bounce.wgsl`); 1 recomputes every one.
+    motion_period: u32,
+    motion_phase: u32,
     // Cells the volume moved since the last frame (xyz; `scroll.wgsl`), when it moved by whole cells.
     scroll: vec4<i32>,
 }

@@ -710,11 +710,13 @@ fn switch_method(
 }
 
 /// `--animate-light`: moves every GI light on a 2 cm circle around where it was spawned, one step per
-/// frame, so the light's RSM and the GI volume are recomputed every frame as for a moving light.
+/// frame, so the light's RSM and the GI volume are recomputed every frame as for a moving light. A
+/// directional light's position means nothing, so a sun's direction wobbles by half a degree instead
+/// (moving it only, the benchmark's "moving sun" changed nothing and timed the volume's first updates).
 fn animate_lights(
     headless: Res<Headless>,
-    mut lights: Query<(Entity, &mut Transform), With<crate::light::GiLight>>,
-    mut origins: Local<std::collections::HashMap<Entity, Vec3>>,
+    mut lights: Query<(Entity, &mut Transform, Has<DirectionalLight>), With<crate::light::GiLight>>,
+    mut origins: Local<std::collections::HashMap<Entity, Transform>>,
     mut step: Local<u32>,
 ) {
     if !headless.options.animate_light || headless.options.scene == StandardScene::Dynamic {
@@ -722,9 +724,15 @@ fn animate_lights(
     }
     *step += 1;
     let angle = *step as f32 * 0.7;
-    for (entity, mut transform) in &mut lights {
-        let origin = *origins.entry(entity).or_insert(transform.translation);
-        transform.translation = origin + 0.01 * Vec3::new(angle.cos(), 0.0, angle.sin());
+    let (cos, sin) = (angle.cos(), angle.sin());
+    for (entity, mut transform, directional) in &mut lights {
+        let origin = *origins.entry(entity).or_insert(*transform);
+        if directional {
+            let tilt = 0.5_f32.to_radians();
+            transform.rotation = origin.rotation * Quat::from_rotation_x(tilt * cos) * Quat::from_rotation_y(tilt * sin);
+        } else {
+            transform.translation = origin.translation + 0.01 * Vec3::new(cos, 0.0, sin);
+        }
     }
 }
 
@@ -852,7 +860,7 @@ fn sidecar(
                 "memory_bytes": rh.memory_bytes(), "half_resolution": o.half_resolution,
                 "output": format!("{:?}", o.gi_output),
                 "secondary": format!("{:?}", rh.secondary), "voxel_visibility": rh.voxel_visibility,
-                "refinement_updates": rh.refinement_updates,
+                "refinement_updates": rh.refinement_updates, "motion_bounce_period": rh.motion_bounce_period,
                 "volume_center": transform.translation.to_array(), "volume_size": transform.scale.to_array(),
                 "mean_chord": mean_chord,
             }),

@@ -129,8 +129,9 @@ pub struct HeadlessOptions {
     #[serde(skip)]
     pub debug_view: Option<crate::camera::GiDebugView>,
     /// `dynamic` scene: orbit its light one step per rendered frame. Other scenes: move every GI light on
-    /// a 2 cm circle each frame, so that the RSM and the GI volume are recomputed every frame as they are
-    /// for a moving light (the dynamic-light timing case).
+    /// a 2 cm circle each frame (a directional light: tilt it by 0.5° around its direction), so that the
+    /// RSM and the GI volume are recomputed every frame as they are for a moving light (the dynamic-light
+    /// timing case).
     pub animate_light: bool,
     /// `dynamic` scene: how many of its objects move (from object 0; 0–10).
     pub animate_meshes: u32,
@@ -263,7 +264,7 @@ pub struct HeadlessArgs {
     ])]
     pub debug_view: Option<String>,
     /// dynamic scene: orbit its light one step per rendered frame; other scenes: move the GI lights on a
-    /// 2 cm circle every frame (times the dynamic-light case)
+    /// 2 cm circle (a sun: tilt it by 0.5°) every frame (times the dynamic-light case)
     #[arg(long)]
     pub animate_light: bool,
     /// dynamic scene: move its first N objects one step per rendered frame, 0..=10
@@ -483,6 +484,9 @@ pub struct RhArgs {
     /// Refinement updates after a change
     #[arg(long, value_name = "N")]
     pub rh_refinement: Option<u32>,
+    /// While things move, recompute the bounce of one hint in N per update, 1..=16
+    #[arg(long, value_name = "N")]
+    pub rh_motion_period: Option<u32>,
     /// Write the volume's field to this JSON file after the last frame
     #[arg(long, value_name = "FILE.json")]
     pub dump_volume: Option<PathBuf>,
@@ -779,6 +783,7 @@ impl RhArgs {
             near_field_occlusion <- rh_near_field,
             albedo_volume <- rh_albedo,
             refinement_updates <- rh_refinement,
+            motion_bounce_period <- rh_motion_period,
         );
         if let Some(irradiance) = self.rh_irradiance {
             rh.irradiance = if irradiance == "linear" { IrradianceReconstruction::Linear } else { IrradianceReconstruction::NonLinear };

@@ -143,7 +143,10 @@
 //!
 //! While the inputs change every frame (a moving light or mesh), each update is amortised: the injection
 //! plus one extra bounce gathered from the displayed field (which already holds every bounce so far, a
-//! frame old), so bounces accumulate over frames instead of all running every frame; when the motion
+//! frame old), so bounces accumulate over frames instead of all running every frame. That bounce is
+//! recomputed for one workgroup of hints in
+//! [`motion_bounce_period`](RadianceHintsVolume::motion_bounce_period) (4) per update, the others adding
+//! the one they gathered last (the first update of a motion recomputes them all); when the motion
 //! stops, full updates and the refinement take over (`docs/dynamic.md` measures lag and error). A moved
 //! mesh re-voxelises only the cells its old and new bounds touch ([`voxelize::voxelize_update`]), in the
 //! background from the volume's voxels, which it keeps until the update arrives (a frame or two; the
@@ -163,10 +166,13 @@
 //!   (`rh_reconstruct` 31 ms, `filter` 4 ms, composite 8 ms; the target is 1.5×, and it was 1.46×
 //!   before the vertical terms); before the visibility masks and packed irradiance it was 4.8–5.7×. The reconstruction reads one mask word and eight hints per hemisphere
 //!   sample: 16 bytes each for walls, 32 for other normals (the vertical terms, 22 → 29 ms).
-//! * **A moving light** (`docs/radiance_hints.md`, § timing; lavapipe, 256²): `cornell` 3.9× the frame
-//!   without GI (5.4× before the bounces read the prepared visibility masks, `rh_masks.wgsl`); 2.8–4.5×
-//!   in the benchmark's rooms, but 54× in `sponza_like` and 259× over `open_field`, whose suns light
-//!   volumes of far more hints, every one updated every frame (`docs/benchmark.md`).
+//! * **A moving light** (`docs/radiance_hints.md`, § timing; lavapipe, 256²): `cornell` 2.9× the frame
+//!   without GI in alternating runs (3.9× when every hint recomputes its bounce every frame,
+//!   `motion_bounce_period` 1; 5.4× before the bounces read the prepared visibility masks,
+//!   `rh_masks.wgsl`); 2.8–4.5× in the benchmark's rooms before the period, but 54× in `sponza_like` and
+//!   259× over `open_field`, whose suns light volumes of far more hints, every one injected every frame
+//!   (`docs/benchmark.md`; `sponza_like` 43–45× with the period 4 or 1: the bounce is not where its
+//!   moving frame goes).
 //! * **Memory**: see [`RadianceHintsVolume`] (16³ hints: 1.7 MiB; the 121 000 hints of a 60 m field
 //!   45 MiB).
 //! * **Units**: the adaptive grid follows the mean distance between the scene's surfaces as well as

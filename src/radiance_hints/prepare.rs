@@ -59,6 +59,11 @@ pub struct RhVolumeUniform {
     pub blend_faces: u32,
     pub occupancy_resolution: UVec4,
     pub near_field_range: f32,
+    /// The bounce pass recomputes the workgroups `w` with `(w + motion_phase) % motion_period == 0` and
+    /// adds the bounce the others kept (`bounce.wgsl`;
+    /// [`motion_bounce_period`](super::RadianceHintsVolume::motion_bounce_period)).
+    pub motion_period: u32,
+    pub motion_phase: u32,
     /// Cells the volume moved by since the last frame, when it moved by whole cells (`scroll.wgsl`).
     pub scroll: IVec4,
 }
@@ -445,6 +450,9 @@ pub struct RhVolumeGpu {
     /// while a light or mesh moves): injection plus a single bounce gathered from the displayed field,
     /// so bounces accumulate over frames instead of all running every frame.
     pub motion_update: bool,
+    /// Amortised updates in a row (0 when this one is not): the first recomputes every hint's bounce,
+    /// the next ones one workgroup in [`motion_bounce_period`](super::RadianceHintsVolume::motion_bounce_period).
+    pub motion_streak: u32,
     /// Dynamic offsets: `[0]` for injection, blending, export and sampling; `[k]` for extra bounce `k`.
     pub uniform_offsets: Vec<u32>,
     pub export: Option<Handle<Image>>,
@@ -656,6 +664,7 @@ impl RhVolumeGpu {
             nested: false,
             cell_diagonal: 0.0,
             motion_update: false,
+            motion_streak: 0,
             scroll: None,
             uniform_offsets: Vec::new(),
             export: None,
@@ -807,6 +816,10 @@ pub(crate) fn prepare_rh_volumes(
         let same_volume = gpu.built_from.as_ref().is_some_and(|b| b.settings == key.settings && b.transform == key.transform)
             || gpu.scroll.is_some();
         gpu.motion_update = changed && same_volume && !gpu.first_update && s.extra_bounces > 0;
+        gpu.motion_streak = if gpu.motion_update { gpu.motion_streak.saturating_add(1) } else { 0 };
+        // The bounces kept in `delta[1]` are those of the last amortised update: after a full update (its
+        // last increment is there) or a scroll (they lie a shift off) every hint recomputes its own.
+        let motion_period = if gpu.motion_streak > 1 && gpu.scroll.is_none() { s.motion_bounce_period.max(1) } else { 1 };
         if changed {
             gpu.updates_left = convergence_updates(s.temporal_blend).max(s.refinement_updates + 1);
             gpu.age = 0;
@@ -858,6 +871,8 @@ pub(crate) fn prepare_rh_volumes(
             blend_faces: nested[index],
             occupancy_resolution: gpu.occupancy_resolution.extend(s.voxel_visibility as u32),
             near_field_range: if s.voxel_visibility { s.near_field_occlusion * cell.length() } else { 0.0 },
+            motion_period,
+            motion_phase: gpu.motion_streak % motion_period,
             scroll: gpu.scroll.unwrap_or(IVec3::ZERO).extend(0),
         };
         gpu.uniform_offsets.clear();
