@@ -169,10 +169,9 @@
 //! * **A moving light** (`docs/radiance_hints.md`, § timing; lavapipe, 256²): `cornell` 2.9× the frame
 //!   without GI in alternating runs (3.9× when every hint recomputes its bounce every frame,
 //!   `motion_bounce_period` 1; 5.4× before the bounces read the prepared visibility masks,
-//!   `rh_masks.wgsl`); 2.8–4.5× in the benchmark's rooms before the period, but 54× in `sponza_like` and
-//!   259× over `open_field`, whose suns light volumes of far more hints, every one injected every frame
-//!   (`docs/benchmark.md`; `sponza_like` 43–45× with the period 4 or 1: the bounce is not where its
-//!   moving frame goes).
+//!   `rh_masks.wgsl`); in the benchmark (`docs/benchmark.md`) 1.9–2.9× in the rooms and 4.3× under
+//!   `sponza_like`'s moving sun, but 55× over `open_field`, whose 60 m default volume holds about
+//!   120 000 hints, every one injected every frame.
 //! * **Memory**: see [`RadianceHintsVolume`] (16³ hints: 1.7 MiB; the 121 000 hints of a 60 m field
 //!   45 MiB).
 //! * **Units**: the adaptive grid follows the mean distance between the scene's surfaces as well as
@@ -185,9 +184,12 @@
 //! * **A room lit only through a door gets too little** (issue #32; `docs/unseen_rooms.md`): room_136's
 //!   camera room 0.82 of its light, room_5's 0.61. `rh_volume_check --split-x` on room_5: the lit room's
 //!   field is 0.98 of the traced one, the camera room's 0.59, and already 0.50 for the first bounce
-//!   alone, so the injection's paths through the door lose half their light. The first suspect is the
-//!   conservative voxelisation, which narrows an opening by up to a voxel on every side (a 0.8 m door in a
-//!   28 cm wall by a third or more for oblique paths); not yet measured.
+//!   alone, so the injection's paths through the door lose half their light, seen from hints beside the
+//!   door at a grazing angle through a 28 cm wall three voxels thick. Voxels half as large (8 per cell)
+//!   raise that first bounce to 0.65 and room_5's image from 0.874 to 0.684 block RMSE, but double the
+//!   volume's memory and cost a moving light 20 % more: not adopted. The conservative triangle test
+//!   itself is not the cause: a centre-only test left that first bounce at 0.50, a test box of 0.8 of
+//!   the voxel the image at 0.871 (and opened holes in other rooms).
 //! * Cells must be smaller than the rooms they light and under about twice the thickness of the walls
 //!   that must stop light. The adaptive default caps them at 0.35 m up to about 30 × 6 × 30 m; beyond
 //!   that the cells grow (0.65 m over 60 m, where `open_field`'s 30 cm free-standing wall has both faces
