@@ -623,16 +623,19 @@ impl Report {
             columns.push(samples.iter().map(|(k, v)| (*k, common::median(v))).collect());
             stamps.push(gpu.iter().map(|(k, v)| (*k, common::median(v))).collect());
         }
+        let period = medium.motion_bounce_period;
+        let moving_label = format!("frame with RH, light moving (injection every frame, the bounce of one hint in {period})");
+        let bounce_label = format!("extra bounces while moving (amortised, `rh_bounce`, one hint in {period} per frame)");
         let rows: [(&str, Box<dyn Fn(&BTreeMap<&str, f64>) -> f64>); 10] = [
             ("frame without GI (Bevy's deferred direct light, readback included)", Box::new(|c| c["none"])),
             ("frame with RH, scene still (volume reused)", Box::new(|c| c["still"])),
-            ("frame with RH, light moving (injection every frame, the bounce of one hint in 4)", Box::new(|c| c["moving"])),
+            (&moving_label, Box::new(|c| c["moving"])),
             ("frame with RH, light moving, every hint's bounce every frame (`motion_bounce_period` 1)", Box::new(|c| c["moving_p1"])),
             ("reconstruction + composite, full resolution", Box::new(|c| c["still"] - c["none"])),
             ("reconstruction + composite, half resolution", Box::new(|c| c["still_half"] - c["none"])),
             ("RSM, 1-sample injection, blend, decide (an update with N_s = 1, no extra bounce)", Box::new(|c| c["moving_b0_ns1"] - c["still"])),
             ("injection, 64 RSM samples per hint (`rh_inject`)", Box::new(|c| c["moving_b0"] - c["moving_b0_ns1"])),
-            ("extra bounces while moving (amortised, `rh_bounce`, one hint in 4 per frame)", Box::new(|c| c["moving"] - c["moving_b0"])),
+            (&bounce_label, Box::new(|c| c["moving"] - c["moving_b0"])),
             ("extra bounces while moving, every hint every frame", Box::new(|c| c["moving_p1"] - c["moving_b0"])),
         ];
         for (name, f) in rows {

@@ -446,12 +446,12 @@ pub struct RhVolumeGpu {
     /// The volume moved by whole cells since the last frame: its displayed field is scrolled with it
     /// before this frame's update (`scroll.wgsl`) instead of being shown a cell off.
     pub scroll: Option<IVec3>,
-    /// This frame's update is an amortised one (the inputs changed this frame, as they do every frame
-    /// while a light or mesh moves): injection plus a single bounce gathered from the displayed field,
-    /// so bounces accumulate over frames instead of all running every frame.
-    pub motion_update: bool,
-    /// Amortised updates in a row (0 when this one is not): the first recomputes every hint's bounce,
-    /// the next ones one workgroup in [`motion_bounce_period`](super::RadianceHintsVolume::motion_bounce_period).
+    /// Amortised updates in a row, this one included (0: this frame's update, if any, is a full one). An
+    /// amortised update ([`motion_update`](Self::motion_update)) runs while the inputs change every
+    /// frame, as they do while a light or mesh moves: injection plus a single bounce gathered from the
+    /// displayed field, so bounces accumulate over frames instead of all running every frame. The first
+    /// recomputes every hint's bounce, the next ones one workgroup in
+    /// [`motion_bounce_period`](super::RadianceHintsVolume::motion_bounce_period).
     pub motion_streak: u32,
     /// Dynamic offsets: `[0]` for injection, blending, export and sampling; `[k]` for extra bounce `k`.
     pub uniform_offsets: Vec<u32>,
@@ -602,6 +602,11 @@ fn buffer(device: &RenderDevice, label: &'static str, size: u64, usage: BufferUs
 }
 
 impl RhVolumeGpu {
+    /// This frame's update is an amortised one (see [`motion_streak`](Self::motion_streak)).
+    pub fn motion_update(&self) -> bool {
+        self.motion_streak > 0
+    }
+
     fn new(device: &RenderDevice, entity: Entity, settings: &RadianceHintsVolume) -> Self {
         let hints = settings.hint_count();
         let workgroups = hints.div_ceil(WORKGROUP_SIZE);
@@ -663,7 +668,6 @@ impl RhVolumeGpu {
             update_this_frame: false,
             nested: false,
             cell_diagonal: 0.0,
-            motion_update: false,
             motion_streak: 0,
             scroll: None,
             uniform_offsets: Vec::new(),
@@ -815,8 +819,8 @@ pub(crate) fn prepare_rh_volumes(
         // or new settings get the full update.
         let same_volume = gpu.built_from.as_ref().is_some_and(|b| b.settings == key.settings && b.transform == key.transform)
             || gpu.scroll.is_some();
-        gpu.motion_update = changed && same_volume && !gpu.first_update && s.extra_bounces > 0;
-        gpu.motion_streak = if gpu.motion_update { gpu.motion_streak.saturating_add(1) } else { 0 };
+        let motion_update = changed && same_volume && !gpu.first_update && s.extra_bounces > 0;
+        gpu.motion_streak = if motion_update { gpu.motion_streak.saturating_add(1) } else { 0 };
         // The bounces kept in `delta[1]` are those of the last amortised update: after a full update (its
         // last increment is there) or a scroll (they lie a shift off) every hint recomputes its own.
         let motion_period = if gpu.motion_streak > 1 && gpu.scroll.is_none() { s.motion_bounce_period.max(1) } else { 1 };
@@ -827,7 +831,7 @@ pub(crate) fn prepare_rh_volumes(
         }
         gpu.update_this_frame = gpu.updates_left > 0;
         gpu.frames_reused = if gpu.update_this_frame { 0 } else { gpu.frames_reused.saturating_add(1) };
-        if gpu.update_this_frame && !gpu.motion_update {
+        if gpu.update_this_frame && !gpu.motion_update() {
             // The decide passes count the extra bounces of this update, and the energies of the last two,
             // from zero.
             queue.write_buffer(&gpu.stats, 0, bytemuck::bytes_of(&[0u32; 4]));
@@ -862,7 +866,7 @@ pub(crate) fn prepare_rh_volumes(
             depth_occlusion_strength: s.depth_occlusion.map_or(0.0, |o| o.strength),
             reconstruction_samples: s.reconstruction_samples,
             reconstruction_reach: s.reconstruction_reach,
-            bounce_tail: (!gpu.motion_update && s.extra_bounces > 0) as u32,
+            bounce_tail: (!gpu.motion_update() && s.extra_bounces > 0) as u32,
             workgroups: gpu.workgroups,
             bounce: 0,
             emitter_count: state.emitter_count,
@@ -924,7 +928,7 @@ pub(crate) fn prepare_rh_volumes(
             .map(|v| {
                 let a = super::activity::RhVolumeActivity {
                     updating: v.update_this_frame,
-                    amortised: v.motion_update,
+                    amortised: v.motion_update(),
                     updates_left: v.updates_left,
                     frames_reused: v.frames_reused,
                     extra_bounces_run: v.bounce_readback.last(),

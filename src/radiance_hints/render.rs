@@ -164,7 +164,7 @@ fn update_volumes(
                     timestamp_writes: None,
                 });
                 let span = diagnostics.pass_span(&mut pass, "diffuse_gi/rh_bounce");
-                if v.motion_update {
+                if v.motion_update() {
                     // One bounce gathered from the displayed field (all bounces so far, a frame old):
                     // repeated every frame, the field converges to injection plus every bounce.
                     pass.set_pipeline(bounce);
@@ -173,7 +173,7 @@ fn update_volumes(
                     pass.set_bind_group(2, &groups.bounce_occupancy, &[]);
                     pass.dispatch_workgroups(v.workgroups, 1, 1);
                 }
-                for k in (1..=v.settings.extra_bounces).filter(|_| !v.motion_update) {
+                for k in (1..=v.settings.extra_bounces).filter(|_| !v.motion_update()) {
                     let offset = v.uniform_offsets[k as usize];
                     let (output, sample) = &groups.bounce[(k % 2) as usize];
                     pass.set_pipeline(bounce);
@@ -192,7 +192,7 @@ fn update_volumes(
                 span.end(&mut pass);
             }
             // The count of extra bounces this full update ran, for the panel (read back without waiting).
-            if !v.motion_update
+            if !v.motion_update()
                 && v.settings.extra_bounces > 0
                 && v.bounce_readback.state.load(std::sync::atomic::Ordering::Acquire) == super::activity::IDLE
             {
