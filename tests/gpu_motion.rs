@@ -224,3 +224,45 @@ fn a_radiance_hints_volume_given_a_new_resolution_is_voxelised_off_the_main_thre
         format!("the resized volume is {error:.4} from one of its new resolution (bound {RESIZED_MAX_ERROR}): its voxels never arrived?"),
     );
 }
+
+/// Frames the sphere moves in the static-layer test, and frames rendered after it stops.
+const LAYER_MOVE: f32 = 12.0;
+const LAYER_AFTER: u32 = 3;
+/// Largest block relative RMSE between DRM's image after the sphere moved (its RSM faces redrawn from
+/// their static layers and the sphere alone) and the still render of that pose (every face drawn from
+/// every triangle): measured 0.0000; with the moving objects' draw over the static layers left out,
+/// 0.011. DRM reads the RSMs per pixel every frame and keeps nothing from
+/// earlier frames, so any texel a composite got wrong shows.
+const LAYER_MAX_ERROR: f64 = 0.002;
+
+/// The RSM faces that see only a moving mesh are redrawn from a copy of themselves without it plus a
+/// draw of it alone (`bevy_diffuse_gi::rsm::StaticLayers`): after such redraws the atlas must hold what
+/// a full render of the same pose holds, the scene's other triangles (spheres along the back wall here)
+/// included. All ten objects move, so that what they reflect is a visible part of the light. A composite that dropped the sphere, or kept only the sphere, or the sphere of an earlier
+/// frame, would light the room differently.
+#[test]
+fn rsm_faces_redrawn_over_their_static_layers_match_a_full_render() {
+    let test = "motion_rsm_static_layers";
+    let layered = |pose: f32, stop: f32, frames: u32| HeadlessOptions {
+        extra_triangles: 2_000,
+        animate_meshes: 10,
+        size: UVec2::splat(64),
+        wait_background: None,
+        ..options(GiMethod::Drm, pose, stop, frames)
+    };
+    let moved = render(&layered(0.0, LAYER_MOVE, LAYER_MOVE as u32 + LAYER_AFTER)).image;
+    let still = render(&layered(LAYER_MOVE, LAYER_MOVE, LAYER_MOVE as u32 + LAYER_AFTER)).image;
+    let start = render(&layered(0.0, 0.0, LAYER_MOVE as u32 + LAYER_AFTER)).image;
+    let error = metrics::compare(&moved, &still).expect("same size").block_relative_rmse;
+    let moved_by = metrics::compare(&start, &still).expect("same size").block_relative_rmse;
+    eprintln!("{test}: moved vs the still render of its pose {error:.4}; the first pose vs that pose {moved_by:.4}");
+    check(test, !moved.has_non_finite(), &moved, None, "NaN or Inf in the image".into());
+    check(test, moved_by > 10.0 * LAYER_MAX_ERROR, &start, Some(&still), format!("the move changed the light by only {moved_by:.4}"));
+    check(
+        test,
+        error <= LAYER_MAX_ERROR,
+        &moved,
+        Some(&still),
+        format!("after the move DRM is {error:.4} from the still render of the same pose (bound {LAYER_MAX_ERROR}): a face redrawn over its static layer differs from one drawn from every triangle"),
+    );
+}

@@ -29,7 +29,18 @@
 //! lights) the volumes it is fitted to change, or when geometry changed inside its frustum (the old and
 //! new bounds of a moved, added or removed mesh, [`frustum_overlaps`]); otherwise last frame's RSM is
 //! reused. A moved mesh rewrites only its own range of the vertex buffer; adding or removing one uploads
-//! the buffer again. Each render is one draw of every snapshot triangle at `rsm_resolution²`.
+//! the buffer again. A face's full render is one draw of every snapshot triangle at `rsm_resolution²`.
+//!
+//! A face that must be redrawn only because instances that are *moving* (changed within the last
+//! [`MOVING_HOLD_FRAMES`](extract::MOVING_HOLD_FRAMES) frames) moved in front of it is not drawn from every
+//! triangle: it keeps a *static layer*, the face drawn once without the moving instances, with its depth
+//! ([`StaticLayers`]); each redraw copies that layer into the atlas and draws the moving instances alone
+//! over it, depth-tested against it. So a character walking through a large level costs a copy of the
+//! faces that see it and a draw of its own triangles, not of the level. The static layer is drawn anew
+//! when the set of moving instances changes (one starts moving, or one has been still for the hold) or
+//! the face itself changes (the light moved): that frame costs a full render, as before. Memory: the
+//! static layers double the atlas once something moves in front of a GI light (36 B per texel: 2.4 MiB
+//! per 256² face).
 
 pub(crate) mod extract;
 
@@ -341,8 +352,14 @@ pub struct RsmAtlas {
     /// The same faces as a storage array indexed by layer, for the passes that read every face (the
     /// per-pixel gathers project points into them).
     pub faces: StorageBuffer<Vec<RsmFaceUniform>>,
-    /// `(layer, dynamic offset, resolution)` of the faces to draw this frame.
-    pub dirty_faces: Vec<(u32, u32, u32)>,
+    /// The faces to draw this frame.
+    pub dirty_faces: Vec<FaceDraw>,
+    /// [`ExtractedGiGeometry::moving`] as `(first vertex, vertex count)`, at
+    /// [`moving_generation`](Self::moving_generation).
+    pub moving: Vec<(u32, u32)>,
+    pub moving_generation: u64,
+    /// Faces drawn without the moving instances (allocated the first time a face needs one).
+    pub static_layers: Option<StaticLayers>,
     /// Bumped whenever any RSM content changes; volumes compare it with what they were built from.
     pub version: u64,
     /// The uploaded snapshot geometry.
@@ -352,34 +369,85 @@ pub struct RsmAtlas {
     pub scene_bounds: Option<(Vec3, Vec3)>,
 }
 
+/// How a face is drawn this frame.
+#[derive(Clone, Debug, PartialEq)]
+pub enum FaceMode {
+    /// Every triangle: the face itself changed (its light, its fit, the atlas), or geometry changed
+    /// with nothing recently moving.
+    Full,
+    /// Only geometry changed where it looks, and only the moving instances' (see
+    /// [`ExtractedGiGeometry::moving`]): the face is copied from its static layer, drawn without them,
+    /// and they alone are drawn over it. `rebuild`: the static layer is out of date (a new moving set, a
+    /// changed face) and is first drawn from every other triangle, and then holds this key.
+    Composite { rebuild: Option<Box<StaticKey>> },
+}
+
+/// One face to draw: its atlas layer, the dynamic offset of its uniform, its resolution and how.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FaceDraw {
+    pub layer: u32,
+    pub offset: u32,
+    pub resolution: u32,
+    pub mode: FaceMode,
+}
+
+/// What a static layer was drawn from: atlas generation, the face, the bits of its flux scale and the
+/// [`moving_generation`](RsmAtlas::moving_generation) whose instances it leaves out.
+pub type StaticKey = (u64, RsmFaceUniform, u32, u64);
+
+/// A copy of the atlas's faces drawn without the moving instances, so that a face that sees only a
+/// moving mesh is redrawn by a copy and a draw of that mesh: the cost of a move does not grow with the
+/// rest of the scene. Same size and layers as the atlas; it doubles the atlas's memory once anything
+/// moves in front of a GI light.
+pub struct StaticLayers {
+    pub position: Texture,
+    pub normal: Texture,
+    pub flux: Texture,
+    pub depth: Texture,
+    /// What each layer holds (`None`: nothing valid).
+    pub keys: Vec<Option<StaticKey>>,
+}
+
+/// The four targets of an atlas (or of its static layers): position, normal, flux, depth.
+fn layer_textures(device: &RenderDevice, size: u32, layers: u32, labels: [&'static str; 4]) -> [Texture; 4] {
+    let make = |label: &'static str, format: TextureFormat| {
+        device.create_texture(&TextureDescriptor {
+            label: Some(label),
+            size: Extent3d {
+                width: size,
+                height: size,
+                depth_or_array_layers: layers,
+            },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: TextureDimension::D2,
+            format,
+            usage: TextureUsages::RENDER_ATTACHMENT | TextureUsages::TEXTURE_BINDING | TextureUsages::COPY_SRC | TextureUsages::COPY_DST,
+            view_formats: &[],
+        })
+    };
+    [
+        make(labels[0], POSITION_FORMAT),
+        make(labels[1], NORMAL_FORMAT),
+        make(labels[2], FLUX_FORMAT),
+        make(labels[3], DEPTH_FORMAT),
+    ]
+}
+
 impl RsmAtlas {
     fn allocate(device: &RenderDevice, size: u32, layers: u32, generation: u64) -> Self {
-        let make = |label: &'static str, format: TextureFormat| {
-            device.create_texture(&TextureDescriptor {
-                label: Some(label),
-                size: Extent3d {
-                    width: size,
-                    height: size,
-                    depth_or_array_layers: layers,
-                },
-                mip_level_count: 1,
-                sample_count: 1,
-                dimension: TextureDimension::D2,
-                format,
-                usage: TextureUsages::RENDER_ATTACHMENT | TextureUsages::TEXTURE_BINDING,
-                view_formats: &[],
-            })
-        };
         let array_view = |t: &Texture| {
             t.create_view(&TextureViewDescriptor {
                 dimension: Some(TextureViewDimension::D2Array),
                 ..default()
             })
         };
-        let position = make("diffuse_gi_rsm_position", POSITION_FORMAT);
-        let normal = make("diffuse_gi_rsm_normal", NORMAL_FORMAT);
-        let flux = make("diffuse_gi_rsm_flux", FLUX_FORMAT);
-        let depth = make("diffuse_gi_rsm_depth", DEPTH_FORMAT);
+        let [position, normal, flux, depth] = layer_textures(
+            device,
+            size,
+            layers,
+            ["diffuse_gi_rsm_position", "diffuse_gi_rsm_normal", "diffuse_gi_rsm_flux", "diffuse_gi_rsm_depth"],
+        );
         Self {
             size,
             layers,
@@ -396,6 +464,9 @@ impl RsmAtlas {
             face_uniforms: DynamicUniformBuffer::default(),
             faces: StorageBuffer::default(),
             dirty_faces: Vec::new(),
+            moving: Vec::new(),
+            moving_generation: 0,
+            static_layers: None,
             version: 0,
             vertices: None,
             vertex_count: 0,
@@ -594,6 +665,8 @@ pub(crate) fn prepare_rsm(
         geometry_dirty = Some(geometry.dirty.take());
     }
     geometry.dirty = Some(Vec::new());
+    atlas.moving = geometry.moving.iter().map(|m| (m.first, m.count)).collect();
+    atlas.moving_generation = geometry.moving_generation;
     atlas.geometry_generation = geometry.generation;
     atlas.scene_bounds = geometry.bounds;
     let scene_bounds = atlas.scene_bounds.unwrap_or((Vec3::splat(-1.0), Vec3::ONE));
@@ -628,6 +701,8 @@ pub(crate) fn prepare_rsm(
         fresh.geometry_generation = atlas.geometry_generation;
         fresh.scene_bounds = atlas.scene_bounds;
         fresh.version = atlas.version + 1;
+        fresh.moving = std::mem::take(&mut atlas.moving);
+        fresh.moving_generation = atlas.moving_generation;
         *atlas = fresh;
     }
 
@@ -658,9 +733,20 @@ pub(crate) fn prepare_rsm(
                 stale_faces |= 1 << i;
             }
             let offset = atlas.face_uniforms.push(face);
-            if dirty || stale_faces & (1 << i) != 0 {
-                atlas.dirty_faces.push((first_layer + i as u32, offset, resolution));
+            if !dirty && stale_faces & (1 << i) == 0 {
+                continue;
             }
+            let layer = first_layer + i as u32;
+            // Only moving geometry changed here since the face was drawn (a full upload clears the
+            // moving set): redraw it from its static layer.
+            let mode = if dirty || atlas.moving.is_empty() {
+                FaceMode::Full
+            } else {
+                let key: StaticKey = (atlas.generation, *face, light_faces.flux_scale.to_bits(), atlas.moving_generation);
+                let cached = atlas.static_layers.as_ref().and_then(|s| s.keys.get(layer as usize)).and_then(Option::as_ref);
+                FaceMode::Composite { rebuild: (cached != Some(&key)).then(|| Box::new(key)) }
+            };
+            atlas.dirty_faces.push(FaceDraw { layer, offset, resolution, mode });
         }
         gpu_lights.push(GpuGiLight {
             clip_from_world: light_faces.faces[0].clip_from_world,
@@ -681,6 +767,17 @@ pub(crate) fn prepare_rsm(
             drawn,
             stale_faces,
         });
+    }
+    let composite = atlas.dirty_faces.iter().any(|f| f.mode != FaceMode::Full);
+    if composite && atlas.static_layers.is_none() {
+        let [position, normal, flux, depth] = layer_textures(
+            &device,
+            atlas.size,
+            atlas.layers,
+            ["diffuse_gi_rsm_static_position", "diffuse_gi_rsm_static_normal", "diffuse_gi_rsm_static_flux", "diffuse_gi_rsm_static_depth"],
+        );
+        // (No face had a valid static layer before: each one here rebuilds its own.)
+        atlas.static_layers = Some(StaticLayers { position, normal, flux, depth, keys: vec![None; atlas.layers as usize] });
     }
     // A light that went away changes the light set without anything to draw.
     let set_changed = previous.len() != atlas.slots.len()
@@ -776,47 +873,125 @@ pub(crate) fn draw_dirty_faces(
         slot.stale_faces = 0;
     }
     atlas.version += 1;
-    for &(layer, offset, resolution) in &dirty {
-        let position = RsmAtlas::layer_view(&atlas.position, layer);
-        let normal = RsmAtlas::layer_view(&atlas.normal, layer);
-        let flux = RsmAtlas::layer_view(&atlas.flux, layer);
-        let depth = RsmAtlas::layer_view(&atlas.depth, layer);
-        let clear = |view| {
-            Some(RenderPassColorAttachment {
-                view,
-                depth_slice: None,
-                resolve_target: None,
-                ops: Operations {
-                    load: LoadOp::Clear(default()),
-                    store: StoreOp::Store,
-                },
-            })
-        };
-        let mut pass = encoder.begin_render_pass(&RenderPassDescriptor {
-            label: Some("diffuse_gi_rsm"),
-            color_attachments: &[clear(&position), clear(&normal), clear(&flux)],
-            depth_stencil_attachment: Some(RenderPassDepthStencilAttachment {
-                view: &depth,
-                depth_ops: Some(Operations {
-                    load: LoadOp::Clear(1.0),
-                    store: StoreOp::Discard,
-                }),
-                stencil_ops: None,
-            }),
-            timestamp_writes: None,
-            occlusion_query_set: None,
-            multiview_mask: None,
-        });
-        let Some(vertices) = atlas.vertices.as_ref() else {
+    let Some(vertices) = atlas.vertices.as_ref() else {
+        // No geometry: the faces are cleared.
+        for face in &dirty {
+            let targets = [&atlas.position, &atlas.normal, &atlas.flux, &atlas.depth].map(|t| RsmAtlas::layer_view(t, face.layer));
+            draw_face(encoder, &targets, Pass::Atlas, pipeline, bind_group, face, None, &[]);
+        }
+        return true;
+    };
+    let everything = [(0, atlas.vertex_count)];
+    let still = still_ranges(&atlas.moving, atlas.vertex_count);
+    for face in &dirty {
+        let targets = [&atlas.position, &atlas.normal, &atlas.flux, &atlas.depth].map(|t| RsmAtlas::layer_view(t, face.layer));
+        let FaceMode::Composite { rebuild } = &face.mode else {
+            draw_face(encoder, &targets, Pass::Atlas, pipeline, bind_group, face, Some(vertices), &everything);
             continue;
         };
-        pass.set_viewport(0.0, 0.0, resolution as f32, resolution as f32, 0.0, 1.0);
-        pass.set_pipeline(pipeline);
-        pass.set_bind_group(0, bind_group, &[offset]);
-        pass.set_vertex_buffer(0, *vertices.slice(..));
-        pass.draw(0..atlas.vertex_count, 0..1);
+        let Some(layers) = atlas.static_layers.as_mut() else {
+            draw_face(encoder, &targets, Pass::Atlas, pipeline, bind_group, face, Some(vertices), &everything);
+            continue;
+        };
+        let textures = [&layers.position, &layers.normal, &layers.flux, &layers.depth];
+        if let Some(key) = rebuild {
+            let static_targets = textures.map(|t| RsmAtlas::layer_view(t, face.layer));
+            draw_face(encoder, &static_targets, Pass::Static, pipeline, bind_group, face, Some(vertices), &still);
+            layers.keys[face.layer as usize] = Some(**key);
+        }
+        // The static layer (every texel, so that the depth copy covers whole subresources), then the
+        // moving instances over it.
+        let atlas_textures = [&atlas.position, &atlas.normal, &atlas.flux, &atlas.depth];
+        for (from, to) in textures.into_iter().zip(atlas_textures) {
+            let origin = Origin3d { x: 0, y: 0, z: face.layer };
+            encoder.copy_texture_to_texture(
+                TexelCopyTextureInfo { texture: from, mip_level: 0, origin, aspect: TextureAspect::All },
+                TexelCopyTextureInfo { texture: to, mip_level: 0, origin, aspect: TextureAspect::All },
+                Extent3d { width: atlas.size, height: atlas.size, depth_or_array_layers: 1 },
+            );
+        }
+        draw_face(encoder, &targets, Pass::Over, pipeline, bind_group, face, Some(vertices), &atlas.moving);
     }
     true
+}
+
+/// The vertex ranges `(first, count)` of `0..count` outside `moving` (sorted, disjoint).
+fn still_ranges(moving: &[(u32, u32)], count: u32) -> Vec<(u32, u32)> {
+    let mut still = Vec::with_capacity(moving.len() + 1);
+    let mut at = 0;
+    for &(first, n) in moving {
+        let first = first.min(count);
+        if first > at {
+            still.push((at, first - at));
+        }
+        at = at.max(first.saturating_add(n).min(count));
+    }
+    if count > at {
+        still.push((at, count - at));
+    }
+    still
+}
+
+/// How [`draw_face`] treats what its targets held.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Pass {
+    /// Clear the atlas's layer first (its depth is not kept).
+    Atlas,
+    /// Clear a static layer first and keep its depth for the composites that copy it.
+    Static,
+    /// Draw over the atlas's layer and the depth copied into it.
+    Over,
+}
+
+/// One render pass into one face's layer of `targets` (position, normal, flux, depth), drawing
+/// `ranges` of `vertices`.
+#[allow(clippy::too_many_arguments)]
+fn draw_face(
+    encoder: &mut CommandEncoder,
+    targets: &[TextureView; 4],
+    pass_kind: Pass,
+    pipeline: &RenderPipeline,
+    bind_group: &BindGroup,
+    face: &FaceDraw,
+    vertices: Option<&Buffer>,
+    ranges: &[(u32, u32)],
+) {
+    let colour = |view| {
+        Some(RenderPassColorAttachment {
+            view,
+            depth_slice: None,
+            resolve_target: None,
+            ops: Operations {
+                load: if pass_kind == Pass::Over { LoadOp::Load } else { LoadOp::Clear(default()) },
+                store: StoreOp::Store,
+            },
+        })
+    };
+    let mut pass = encoder.begin_render_pass(&RenderPassDescriptor {
+        label: Some("diffuse_gi_rsm"),
+        color_attachments: &[colour(&targets[0]), colour(&targets[1]), colour(&targets[2])],
+        depth_stencil_attachment: Some(RenderPassDepthStencilAttachment {
+            view: &targets[3],
+            depth_ops: Some(Operations {
+                load: if pass_kind == Pass::Over { LoadOp::Load } else { LoadOp::Clear(1.0) },
+                store: if pass_kind == Pass::Static { StoreOp::Store } else { StoreOp::Discard },
+            }),
+            stencil_ops: None,
+        }),
+        timestamp_writes: None,
+        occlusion_query_set: None,
+        multiview_mask: None,
+    });
+    let Some(vertices) = vertices else {
+        return;
+    };
+    pass.set_viewport(0.0, 0.0, face.resolution as f32, face.resolution as f32, 0.0, 1.0);
+    pass.set_pipeline(pipeline);
+    pass.set_bind_group(0, bind_group, &[face.offset]);
+    pass.set_vertex_buffer(0, *vertices.slice(..));
+    for &(first, count) in ranges.iter().filter(|r| r.1 > 0) {
+        pass.draw(first..first + count, 0..1);
+    }
 }
 
 #[cfg(test)]
@@ -825,6 +1000,26 @@ mod tests {
 
     fn bounds() -> (Vec3, Vec3) {
         (Vec3::splat(-1.0), Vec3::splat(1.0))
+    }
+
+    #[test]
+    fn the_still_ranges_are_every_vertex_outside_the_moving_ones() {
+        assert_eq!(still_ranges(&[], 30), vec![(0, 30)]);
+        assert_eq!(still_ranges(&[(0, 30)], 30), vec![]);
+        assert_eq!(still_ranges(&[(3, 6), (12, 3)], 30), vec![(0, 3), (9, 3), (15, 15)]);
+        assert_eq!(still_ranges(&[(0, 6), (24, 6)], 30), vec![(6, 18)]);
+        // Ranges past the buffer (a stale set) are cut to it.
+        assert_eq!(still_ranges(&[(27, 9)], 30), vec![(0, 27)]);
+        assert_eq!(still_ranges(&[(40, 3)], 30), vec![(0, 30)]);
+        // Together with the moving ranges they cover every vertex once.
+        let moving = [(3, 6), (9, 3), (21, 3)];
+        let mut covered = vec![0; 30];
+        for (first, count) in moving.iter().chain(&still_ranges(&moving, 30)) {
+            for v in *first..first + count {
+                covered[v as usize] += 1;
+            }
+        }
+        assert!(covered.iter().all(|&c| c == 1), "{covered:?}");
     }
 
     #[test]
