@@ -47,9 +47,14 @@ fn tail_factor() -> f32 {
 }
 
 @compute @workgroup_size(#{WORKGROUP_SIZE})
-fn blend(@builtin(global_invocation_id) gid: vec3<u32>) {
+fn blend(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
     let index = gid.x;
     if index >= volume.resolution.w {
+        return;
+    }
+    // A workgroup that did not inject this update (`RadianceHintsVolume::motion_hints_per_update`) keeps
+    // its displayed field until its turn: the running sum holds nothing of this update for it.
+    if (wid.x + volume.motion_phase) % max(volume.inject_period, 1u) != 0u {
         return;
     }
     let base = index * SH_FLOATS;

@@ -256,9 +256,16 @@ fn in_window(texel: vec2<i32>, center: vec2<i32>, half: i32) -> bool {
 }
 
 @compute @workgroup_size(#{WORKGROUP_SIZE})
-fn inject(@builtin(global_invocation_id) gid: vec3<u32>) {
+fn inject(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
     let index = gid.x;
     if index >= volume.resolution.w {
+        return;
+    }
+    // While things move in a volume of more hints than `motion_hints_per_update`, one workgroup in
+    // `inject_period` injects this update; the others keep their displayed field until their turn (the
+    // blend skips them) and the injection of their last turn in `out_delta`. Whole workgroups, so that
+    // the skipped ones cost nothing.
+    if (wid.x + volume.motion_phase) % max(volume.inject_period, 1u) != 0u {
         return;
     }
     let res = volume.resolution.xyz;

@@ -72,6 +72,9 @@ struct RhVolume {
     // motion_period == 0 and the others add the bounce they kept (`bounce.wgsl`); 1 recomputes every one.
     motion_period: u32,
     motion_phase: u32,
+    // The injection likewise injects the workgroups w with (w + motion_phase) % inject_period == 0 and
+    // the others keep the injection of their last turn (`inject.wgsl`).
+    inject_period: u32,
     // Cells the volume moved since the last frame (xyz; `scroll.wgsl`), when it moved by whole cells.
     scroll: vec4<i32>,
 }

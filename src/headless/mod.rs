@@ -860,7 +860,7 @@ fn sidecar(
                 "memory_bytes": rh.memory_bytes(), "half_resolution": o.half_resolution,
                 "output": format!("{:?}", o.gi_output),
                 "secondary": format!("{:?}", rh.secondary), "voxel_visibility": rh.voxel_visibility,
-                "refinement_updates": rh.refinement_updates, "motion_bounce_period": rh.motion_bounce_period,
+                "refinement_updates": rh.refinement_updates, "motion_bounce_period": rh.motion_bounce_period, "motion_hints_per_update": rh.motion_hints_per_update,
                 "volume_center": transform.translation.to_array(), "volume_size": transform.scale.to_array(),
                 "mean_chord": mean_chord,
             }),

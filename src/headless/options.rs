@@ -487,6 +487,9 @@ pub struct RhArgs {
     /// While things move, recompute the bounce of one hint in N per update, 1..=16
     #[arg(long, value_name = "N")]
     pub rh_motion_period: Option<u32>,
+    /// While things move, inject and gather at most about N hints per update (larger volumes update in turns), 256..=262144
+    #[arg(long, value_name = "N")]
+    pub rh_motion_hints: Option<u32>,
     /// Write the volume's field to this JSON file after the last frame
     #[arg(long, value_name = "FILE.json")]
     pub dump_volume: Option<PathBuf>,
@@ -784,6 +787,7 @@ impl RhArgs {
             albedo_volume <- rh_albedo,
             refinement_updates <- rh_refinement,
             motion_bounce_period <- rh_motion_period,
+            motion_hints_per_update <- rh_motion_hints,
         );
         if let Some(irradiance) = self.rh_irradiance {
             rh.irradiance = if irradiance == "linear" { IrradianceReconstruction::Linear } else { IrradianceReconstruction::NonLinear };

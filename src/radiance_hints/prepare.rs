@@ -64,6 +64,10 @@ pub struct RhVolumeUniform {
     /// [`motion_bounce_period`](super::RadianceHintsVolume::motion_bounce_period)).
     pub motion_period: u32,
     pub motion_phase: u32,
+    /// The injection does the same with `inject_period` ≤ `motion_period`, the others keeping the
+    /// injection of their last turn (`inject.wgsl`;
+    /// [`motion_hints_per_update`](super::RadianceHintsVolume::motion_hints_per_update)).
+    pub inject_period: u32,
     /// Cells the volume moved by since the last frame, when it moved by whole cells (`scroll.wgsl`).
     pub scroll: IVec4,
 }
@@ -451,7 +455,9 @@ pub struct RhVolumeGpu {
     /// frame, as they do while a light or mesh moves: injection plus a single bounce gathered from the
     /// displayed field, so bounces accumulate over frames instead of all running every frame. The first
     /// recomputes every hint's bounce, the next ones one workgroup in
-    /// [`motion_bounce_period`](super::RadianceHintsVolume::motion_bounce_period).
+    /// [`motion_bounce_period`](super::RadianceHintsVolume::motion_bounce_period), and in a volume larger
+    /// than [`motion_hints_per_update`](super::RadianceHintsVolume::motion_hints_per_update) inject in
+    /// turns as well.
     pub motion_streak: u32,
     /// Dynamic offsets: `[0]` for injection, blending, export and sampling; `[k]` for extra bounce `k`.
     pub uniform_offsets: Vec<u32>,
@@ -823,7 +829,14 @@ pub(crate) fn prepare_rh_volumes(
         gpu.motion_streak = if motion_update { gpu.motion_streak.saturating_add(1) } else { 0 };
         // The bounces kept in `delta[1]` are those of the last amortised update: after a full update (its
         // last increment is there) or a scroll (they lie a shift off) every hint recomputes its own.
-        let motion_period = if gpu.motion_streak > 1 && gpu.scroll.is_none() { s.motion_bounce_period.max(1) } else { 1 };
+        // The same holds for the injection kept in `delta[0]`. A volume of more hints than
+        // `motion_hints_per_update` injects them in turns too, and its bounces at least as slowly, so that
+        // each frame's update is about that many hints' work.
+        let amortised = gpu.motion_streak > 1 && gpu.scroll.is_none();
+        let inject_period = if amortised { gpu.hints.div_ceil(s.motion_hints_per_update.max(1)).max(1) } else { 1 };
+        // A multiple of the injection's period, so that a workgroup's bounce is recomputed on one of its
+        // injection turns (the only updates that blend it into the displayed field).
+        let motion_period = if amortised { inject_period * s.motion_bounce_period.max(1).div_ceil(inject_period) } else { 1 };
         if changed {
             gpu.updates_left = convergence_updates(s.temporal_blend).max(s.refinement_updates + 1);
             gpu.age = 0;
@@ -876,7 +889,8 @@ pub(crate) fn prepare_rh_volumes(
             occupancy_resolution: gpu.occupancy_resolution.extend(s.voxel_visibility as u32),
             near_field_range: if s.voxel_visibility { s.near_field_occlusion * cell.length() } else { 0.0 },
             motion_period,
-            motion_phase: gpu.motion_streak % motion_period,
+            motion_phase: gpu.motion_streak,
+            inject_period,
             scroll: gpu.scroll.unwrap_or(IVec3::ZERO).extend(0),
         };
         gpu.uniform_offsets.clear();

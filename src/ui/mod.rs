@@ -534,6 +534,11 @@ fn volume_ui(ui: &mut egui::Ui, label: &str, volume: &mut Mut<RadianceHintsVolum
     ui.add(egui::Slider::new(&mut v.bounce_threshold, 0.0..=0.2).text("bounce stop threshold"));
     ui.add(egui::Slider::new(&mut v.temporal_blend, 0.05..=1.0).text("temporal blend"));
     ui.add(egui::Slider::new(&mut v.motion_bounce_period, 1..=16).text("bounce refresh while moving (frames)"));
+    ui.add(
+        egui::Slider::new(&mut v.motion_hints_per_update, 256..=RadianceHintsVolume::MAX_HINTS)
+            .logarithmic(true)
+            .text("hints updated per frame while moving"),
+    );
     ui.checkbox(&mut v.albedo_volume, "albedo volume (coloured extra bounces)");
     let mut occlusion = v.depth_occlusion.is_some();
     ui.checkbox(&mut occlusion, "§8 camera-depth occlusion");
