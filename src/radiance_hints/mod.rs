@@ -173,10 +173,11 @@
 //! * **A moving light** (`docs/radiance_hints.md`, § timing; lavapipe, 256²): `cornell` 2.9× the frame
 //!   without GI in alternating runs (3.9× when every hint recomputes its bounce every frame,
 //!   `motion_bounce_period` 1; 5.4× before the bounces read the prepared visibility masks,
-//!   `rh_masks.wgsl`); in the benchmark (`docs/benchmark.md`) 1.9–2.9× in the rooms and 4.3× under
-//!   `sponza_like`'s moving sun, and 55× over `open_field`, whose 60 m default volume holds about
-//!   120 000 hints, before they were injected in turns (`motion_hints_per_update`): alternating runs
-//!   at 256², 2.3–2.9 s → 0.69–0.79 s a frame there (the frame without GI about 0.09 s).
+//!   `rh_masks.wgsl`); in the benchmark (`docs/benchmark.md`, one round each) 1.9–2.9× in the rooms,
+//!   4.0× under `sponza_like`'s moving sun (4.3× before its 17 100 hints took two turns) and 16× over
+//!   `open_field`, whose 60 m default volume holds about 120 000 hints: 55× before they were injected
+//!   in turns ([`motion_hints_per_update`](RadianceHintsVolume::motion_hints_per_update); headless
+//!   runs at 256², 2.3–2.9 s → 0.69–0.79 s a frame).
 //! * **Memory**: see [`RadianceHintsVolume`] (16³ hints: 1.7 MiB; the 121 000 hints of a 60 m field
 //!   45 MiB).
 //! * **Units**: the adaptive grid follows the mean distance between the scene's surfaces as well as
