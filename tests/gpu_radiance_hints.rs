@@ -787,6 +787,20 @@ fn a_volume_moving_by_whole_cells_scrolls_its_field_with_it() {
     );
 }
 
+/// `cornell`'s indirect light at 64² after its light moved every frame for 24 frames, with `volume`.
+fn cornell_light_moving(volume: RadianceHintsVolume) -> HdrImage {
+    render(&HeadlessOptions {
+        method: HeadlessMethod::Gi(GiMethod::RadianceHints),
+        indirect_only: true,
+        animate_light: true,
+        frames: 24,
+        size: bevy::math::UVec2::splat(64),
+        rh: volume,
+        ..Default::default()
+    })
+    .image
+}
+
 #[test]
 fn a_moving_lights_bounces_recomputed_in_turns_hold_the_light_of_every_hint_every_frame() {
     // While a light moves, each update gathers one bounce from the displayed field; with
@@ -797,21 +811,9 @@ fn a_moving_lights_bounces_recomputed_in_turns_hold_the_light_of_every_hint_ever
     // dropped the kept bounces (three quarters of the bounce light) would miss the energy bound below by
     // far. Measured on lavapipe: block 0.061, energy 0.999.
     let test = "rh_motion_bounce_period";
-    let moving = |volume: RadianceHintsVolume| {
-        render(&HeadlessOptions {
-            method: HeadlessMethod::Gi(GiMethod::RadianceHints),
-            indirect_only: true,
-            animate_light: true,
-            frames: 24,
-            size: bevy::math::UVec2::splat(64),
-            rh: volume,
-            ..Default::default()
-        })
-        .image
-    };
-    let every = moving(RadianceHintsVolume { motion_bounce_period: 1, ..Default::default() });
-    let turns = moving(RadianceHintsVolume::default());
-    let unbounced = moving(RadianceHintsVolume { extra_bounces: 0, ..Default::default() });
+    let every = cornell_light_moving(RadianceHintsVolume { motion_bounce_period: 1, ..Default::default() });
+    let turns = cornell_light_moving(RadianceHintsVolume::default());
+    let unbounced = cornell_light_moving(RadianceHintsVolume { extra_bounces: 0, ..Default::default() });
     let m = metrics::compare(&turns, &every).expect("same size");
     let control = metrics::compare(&unbounced, &every).expect("same size");
     eprintln!(
@@ -841,20 +843,8 @@ fn a_moving_light_over_more_hints_than_the_budget_injects_them_in_turns_and_hold
     // Blending the skipped hints towards the running sum this update did not compute for them (it keeps
     // growing by their kept bounce) measured 127 / 76.
     let test = "rh_motion_hints_per_update";
-    let moving = |volume: RadianceHintsVolume| {
-        render(&HeadlessOptions {
-            method: HeadlessMethod::Gi(GiMethod::RadianceHints),
-            indirect_only: true,
-            animate_light: true,
-            frames: 24,
-            size: bevy::math::UVec2::splat(64),
-            rh: volume,
-            ..Default::default()
-        })
-        .image
-    };
-    let every = moving(RadianceHintsVolume { motion_hints_per_update: RadianceHintsVolume::MAX_HINTS, ..Default::default() });
-    let turns = moving(RadianceHintsVolume { motion_hints_per_update: 512, ..Default::default() });
+    let every = cornell_light_moving(RadianceHintsVolume { motion_hints_per_update: RadianceHintsVolume::MAX_HINTS, ..Default::default() });
+    let turns = cornell_light_moving(RadianceHintsVolume { motion_hints_per_update: 512, ..Default::default() });
     let m = metrics::compare(&turns, &every).expect("same size");
     eprintln!("{test}: 512 hints per update vs every hint: block {:.4}, energy {:.4}", m.block_relative_rmse, m.energy_ratio);
     check(test, !turns.has_non_finite(), &turns, None, "NaN or Inf in the image".into());
