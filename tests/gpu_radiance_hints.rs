@@ -801,6 +801,18 @@ fn cornell_light_moving(volume: RadianceHintsVolume) -> HdrImage {
     .image
 }
 
+/// Fails `test` unless `turns` is within 0.1 block RMSE and 4 % of the energy of `every`.
+fn holds_the_light(test: &str, turns: &HdrImage, every: &HdrImage, what: &str) {
+    let m = metrics::compare(turns, every).expect("same size");
+    check(
+        test,
+        m.block_relative_rmse < 0.1 && (m.energy_ratio - 1.0).abs() < 0.04,
+        turns,
+        Some(every),
+        format!("{what}: block {:.4}, energy {:.4}", m.block_relative_rmse, m.energy_ratio),
+    );
+}
+
 #[test]
 fn a_moving_lights_bounces_recomputed_in_turns_hold_the_light_of_every_hint_every_frame() {
     // While a light moves, each update gathers one bounce from the displayed field; with
@@ -821,16 +833,7 @@ fn a_moving_lights_bounces_recomputed_in_turns_hold_the_light_of_every_hint_ever
         m.block_relative_rmse, m.energy_ratio, control.energy_ratio
     );
     assert!(control.energy_ratio < 0.9, "the extra bounces must carry light here: {:.4}", control.energy_ratio);
-    check(
-        test,
-        m.block_relative_rmse < 0.1 && (m.energy_ratio - 1.0).abs() < 0.04,
-        &turns,
-        Some(&every),
-        format!(
-            "bounces recomputed in turns differ from every hint's every frame: block {:.4}, energy {:.4}",
-            m.block_relative_rmse, m.energy_ratio
-        ),
-    );
+    holds_the_light(test, &turns, &every, "bounces recomputed in turns differ from every hint's every frame");
 }
 
 #[test]
@@ -848,14 +851,5 @@ fn a_moving_light_over_more_hints_than_the_budget_injects_them_in_turns_and_hold
     let m = metrics::compare(&turns, &every).expect("same size");
     eprintln!("{test}: 512 hints per update vs every hint: block {:.4}, energy {:.4}", m.block_relative_rmse, m.energy_ratio);
     check(test, !turns.has_non_finite(), &turns, None, "NaN or Inf in the image".into());
-    check(
-        test,
-        m.block_relative_rmse < 0.1 && (m.energy_ratio - 1.0).abs() < 0.04,
-        &turns,
-        Some(&every),
-        format!(
-            "hints injected in turns differ from every hint injected every frame: block {:.4}, energy {:.4}",
-            m.block_relative_rmse, m.energy_ratio
-        ),
-    );
+    holds_the_light(test, &turns, &every, "hints injected in turns differ from every hint injected every frame");
 }
