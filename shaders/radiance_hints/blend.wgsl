@@ -12,7 +12,7 @@
 // tail brings the sum to what sixteen bounces give. Motion updates gather one bounce a frame from the
 // displayed field, which converges to every bounce by itself: they add no tail.
 
-#import bevy_diffuse_gi::rh_types::{RhVolume, SH_FLOATS, FIELD_TERMS, FIELD_UP, FIELD_DOWN}
+#import bevy_diffuse_gi::rh_types::{RhVolume, SH_FLOATS, FIELD_TERMS, FIELD_UP, FIELD_DOWN, on_turn}
 #import bevy_diffuse_gi::rh_packed::{Packed, pack_field}
 
 @group(0) @binding(0) var<uniform> volume: RhVolume;
@@ -54,7 +54,7 @@ fn blend(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(workgroup_id) w
     }
     // A workgroup that did not inject this update (`RadianceHintsVolume::motion_hints_per_update`) keeps
     // its displayed field until its turn: the running sum holds nothing of this update for it.
-    if (wid.x + volume.motion_phase) % max(volume.inject_period, 1u) != 0u {
+    if !on_turn(volume, wid.x, volume.inject_period) {
         return;
     }
     let base = index * SH_FLOATS;

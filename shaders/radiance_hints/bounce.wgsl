@@ -24,7 +24,7 @@
 
 #import bevy_diffuse_gi::rh_types::{
     Sh, FIELD_TERMS, SH_FLOATS, PI, sh_add, sh_irradiance, cell_coords, cell_center_local, local_to_world, pcg,
-    rand, rand3, uniform_sphere, finite3,
+    rand, rand3, uniform_sphere, finite3, on_turn,
 }
 #import bevy_diffuse_gi::rh_sampling::{volume, distances, albedo, trilinear, trilinear_from, sh_at, distances_at, albedo_at, inside_volume}
 #import bevy_diffuse_gi::rh_types::{world_to_local, local_to_occupancy}
@@ -64,7 +64,7 @@ fn bounce(
         // While things move, one workgroup in `motion_period` recomputes its bounce this update; the
         // others add the one they kept in `out_delta` (`RadianceHintsVolume::motion_bounce_period`).
         // Whole workgroups, so that the skipped ones cost nothing.
-        let refresh = (wid.x + volume.motion_phase) % max(volume.motion_period, 1u) == 0u;
+        let refresh = on_turn(volume, wid.x, volume.motion_period);
         if refresh {
 #ifndef SECONDARY_PAPER
             // Directions through the whole volume: its diagonal in world units.

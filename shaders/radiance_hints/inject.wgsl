@@ -26,7 +26,7 @@
 
 #import bevy_diffuse_gi::rh_types::{
     RhVolume, FreeExtents, free_extents, Sh, FIELD_TERMS, SH_FLOATS, PI, sh_add, cell_coords, cell_center_local, local_to_world, world_to_local,
-    local_to_occupancy, pcg, rand, rand3, finite3,
+    local_to_occupancy, pcg, rand, rand3, finite3, on_turn,
 }
 #ifdef VOXEL_VISIBILITY
 #import bevy_diffuse_gi::rh_occupancy::{first_hit, free_start, occupied}
@@ -265,7 +265,7 @@ fn inject(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(workgroup_id) 
     // `inject_period` injects this update; the others keep their displayed field until their turn (the
     // blend skips them) and the injection of their last turn in `out_delta`. Whole workgroups, so that
     // the skipped ones cost nothing.
-    if (wid.x + volume.motion_phase) % max(volume.inject_period, 1u) != 0u {
+    if !on_turn(volume, wid.x, volume.inject_period) {
         return;
     }
     let res = volume.resolution.xyz;

@@ -79,6 +79,12 @@ struct RhVolume {
     scroll: vec4<i32>,
 }
 
+// While things move, whether workgroup `w` of hints takes its turn this update when one workgroup in
+// `period` does (`motion_period` for the bounce, `inject_period` for the injection and the blend).
+fn on_turn(v: RhVolume, w: u32, period: u32) -> bool {
+    return (w + v.motion_phase) % max(period, 1u) == 0u;
+}
+
 // Volume-local position → occupancy-grid coordinates (voxel v spans [v, v + 1)).
 fn local_to_occupancy(v: RhVolume, local: vec3<f32>) -> vec3<f32> {
     return (local + 0.5) * vec3<f32>(v.occupancy_resolution.xyz);

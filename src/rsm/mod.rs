@@ -354,10 +354,6 @@ pub struct RsmAtlas {
     pub faces: StorageBuffer<Vec<RsmFaceUniform>>,
     /// The faces to draw this frame.
     pub dirty_faces: Vec<FaceDraw>,
-    /// [`ExtractedGiGeometry::moving`] as `(first vertex, vertex count)`, at
-    /// [`moving_generation`](Self::moving_generation).
-    pub moving: Vec<(u32, u32)>,
-    pub moving_generation: u64,
     /// Faces drawn without the moving instances (allocated the first time a face needs one).
     pub static_layers: Option<StaticLayers>,
     /// Bumped whenever any RSM content changes; volumes compare it with what they were built from.
@@ -392,7 +388,7 @@ pub struct FaceDraw {
 }
 
 /// What a static layer was drawn from: atlas generation, the face, the bits of its flux scale and the
-/// [`moving_generation`](RsmAtlas::moving_generation) whose instances it leaves out.
+/// [`moving_generation`](ExtractedGiGeometry::moving_generation) whose instances it leaves out.
 pub type StaticKey = (u64, RsmFaceUniform, u32, u64);
 
 /// A copy of the atlas's faces drawn without the moving instances, so that a face that sees only a
@@ -464,8 +460,6 @@ impl RsmAtlas {
             face_uniforms: DynamicUniformBuffer::default(),
             faces: StorageBuffer::default(),
             dirty_faces: Vec::new(),
-            moving: Vec::new(),
-            moving_generation: 0,
             static_layers: None,
             version: 0,
             vertices: None,
@@ -665,8 +659,6 @@ pub(crate) fn prepare_rsm(
         geometry_dirty = Some(geometry.dirty.take());
     }
     geometry.dirty = Some(Vec::new());
-    atlas.moving = geometry.moving.iter().map(|m| (m.first, m.count)).collect();
-    atlas.moving_generation = geometry.moving_generation;
     atlas.geometry_generation = geometry.generation;
     atlas.scene_bounds = geometry.bounds;
     let scene_bounds = atlas.scene_bounds.unwrap_or((Vec3::splat(-1.0), Vec3::ONE));
@@ -701,8 +693,6 @@ pub(crate) fn prepare_rsm(
         fresh.geometry_generation = atlas.geometry_generation;
         fresh.scene_bounds = atlas.scene_bounds;
         fresh.version = atlas.version + 1;
-        fresh.moving = std::mem::take(&mut atlas.moving);
-        fresh.moving_generation = atlas.moving_generation;
         *atlas = fresh;
     }
 
@@ -739,10 +729,10 @@ pub(crate) fn prepare_rsm(
             let layer = first_layer + i as u32;
             // Only moving geometry changed here since the face was drawn (a full upload clears the
             // moving set): redraw it from its static layer.
-            let mode = if dirty || atlas.moving.is_empty() {
+            let mode = if dirty || geometry.moving.is_empty() {
                 FaceMode::Full
             } else {
-                let key: StaticKey = (atlas.generation, *face, light_faces.flux_scale.to_bits(), atlas.moving_generation);
+                let key: StaticKey = (atlas.generation, *face, light_faces.flux_scale.to_bits(), geometry.moving_generation);
                 let cached = atlas.static_layers.as_ref().and_then(|s| s.keys.get(layer as usize)).and_then(Option::as_ref);
                 FaceMode::Composite { rebuild: (cached != Some(&key)).then(|| Box::new(key)) }
             };
@@ -834,6 +824,7 @@ pub(crate) fn draw_rsm(
     rsm_pipeline: Res<RsmPipeline>,
     pipeline_cache: Res<PipelineCache>,
     focus: Res<RsmFocus>,
+    geometry: Res<ExtractedGiGeometry>,
     mut ctx: RenderContext,
 ) {
     if !focus.needed() || atlas.dirty_faces.is_empty() {
@@ -852,14 +843,15 @@ pub(crate) fn draw_rsm(
     let diagnostics = ctx.diagnostic_recorder();
     let diagnostics = diagnostics.as_deref();
     let span = diagnostics.time_span(ctx.command_encoder(), "diffuse_gi/rsm");
-    draw_dirty_faces(&mut atlas, pipeline, &bind_group, ctx.command_encoder());
+    draw_dirty_faces(&mut atlas, &geometry.moving, pipeline, &bind_group, ctx.command_encoder());
     span.end(ctx.command_encoder());
 }
 
-/// Renders the faces `prepare_rsm` marked dirty and records what they now show. Returns whether
-/// anything was drawn.
+/// Renders the faces `prepare_rsm` marked dirty and records what they now show; the composites draw
+/// the `moving` instances over their static layers. Returns whether anything was drawn.
 pub(crate) fn draw_dirty_faces(
     atlas: &mut RsmAtlas,
+    moving: &[extract::MovingRange],
     pipeline: &RenderPipeline,
     bind_group: &BindGroup,
     encoder: &mut CommandEncoder,
@@ -882,7 +874,8 @@ pub(crate) fn draw_dirty_faces(
         return true;
     };
     let everything = [(0, atlas.vertex_count)];
-    let still = still_ranges(&atlas.moving, atlas.vertex_count);
+    let moving: Vec<(u32, u32)> = moving.iter().map(|m| (m.first, m.count)).collect();
+    let still = still_ranges(&moving, atlas.vertex_count);
     for face in &dirty {
         let targets = [&atlas.position, &atlas.normal, &atlas.flux, &atlas.depth].map(|t| RsmAtlas::layer_view(t, face.layer));
         let FaceMode::Composite { rebuild } = &face.mode else {
@@ -910,7 +903,7 @@ pub(crate) fn draw_dirty_faces(
                 Extent3d { width: atlas.size, height: atlas.size, depth_or_array_layers: 1 },
             );
         }
-        draw_face(encoder, &targets, Pass::Over, pipeline, bind_group, face, Some(vertices), &atlas.moving);
+        draw_face(encoder, &targets, Pass::Over, pipeline, bind_group, face, Some(vertices), &moving);
     }
     true
 }
