@@ -64,7 +64,8 @@ fn main_thread_ms(report: &HeadlessReport) -> Vec<f64> {
     report.sidecar["main_thread_ms"].as_array().expect("main_thread_ms").iter().filter_map(|v| v.as_f64()).collect()
 }
 
-fn follows_a_moving_mesh(method: GiMethod) {
+/// Returns the moving run's report.
+fn follows_a_moving_mesh(method: GiMethod) -> HeadlessReport {
     let test = format!("motion_{}", method.name());
     let moving = render(&options(method, 0.0, MOVING_FRAMES, MOVING_FRAMES as u32 + AFTER_STOP));
     let at_start = render(&options(method, 0.0, 0.0, AFTER_STOP)).image;
@@ -113,6 +114,7 @@ fn follows_a_moving_mesh(method: GiMethod) {
         Some(&at_end),
         format!("the light did not follow the sphere: {followed:.4} from the final pose's still image (the first pose: {left_behind:.4})"),
     );
+    moving
 }
 
 #[test]
@@ -140,9 +142,30 @@ fn radiosity_follows_a_moving_mesh_without_stalling() {
     follows_a_moving_mesh(GiMethod::Radiosity);
 }
 
+/// Also: the preparations while the sphere moves re-trace only the photon paths and march only the
+/// probe rays that ran near it (its old and new bounds), not the whole scene's.
 #[test]
 fn the_photon_grid_follows_a_moving_mesh_without_stalling() {
-    follows_a_moving_mesh(GiMethod::PhotonGrid);
+    let moving = follows_a_moving_mesh(GiMethod::PhotonGrid);
+    let grid = &moving.sidecar["photon_grid"];
+    let number = |k: &str| grid[k].as_f64().unwrap_or(f64::NAN);
+    let (traced, paths) = (number("paths_traced"), number("paths"));
+    let (marched, rays) = (number("rays_marched"), number("rays"));
+    eprintln!("motion_photon_grid: the last preparation traced {traced} of {paths} paths and marched {marched} of {rays} probe rays");
+    check(
+        "motion_photon_grid",
+        traced > 0.0 && traced < 0.5 * paths,
+        &moving.image,
+        None,
+        format!("the last preparation after the move traced {traced} of {paths} photon paths (expected some, fewer than half)"),
+    );
+    check(
+        "motion_photon_grid",
+        marched > 0.0 && marched < 0.5 * rays,
+        &moving.image,
+        None,
+        format!("the last preparation after the move marched {marched} of {rays} probe rays (expected some, fewer than half)"),
+    );
 }
 
 /// Radiance Hints with little noise between runs (as `gpu_radiance_hints`' scroll test): what is left

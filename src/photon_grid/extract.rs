@@ -8,11 +8,11 @@ use bevy::prelude::*;
 use bevy::render::extract_resource::ExtractResource;
 
 use super::PhotonGridSettings;
-use super::grid::{self, FieldParams, GridLayout, PhotonStats, RGrid, ShField, TraceParams, VGrid};
+use super::grid::{self, FieldParams, GridLayout, PhotonPaths, PhotonStats, ProbeRays, RGrid, ShField, TraceParams, VGrid};
 use super::prepare::PhotonGridUniform;
 use crate::background::{self, Blend, CpuJob, CpuMethodParams, JobKey, MethodUse};
 use crate::camera::GiMethod;
-use crate::scene::SceneSnapshot;
+use crate::scene::{SceneSnapshot, SnapshotLight};
 
 /// The field the frame gathers from. Extracted to the render world.
 #[derive(Resource, Clone, Debug, Default, ExtractResource)]
@@ -51,6 +51,16 @@ pub struct PhotonGridActivity {
     /// The photon list and where the flux went.
     pub photons: usize,
     pub stats: PhotonStats,
+    /// Photon paths traced by the last update: all of them after a change of the lights or the
+    /// settings, only those whose rays ran through what moved after a mesh moved.
+    pub paths_traced: usize,
+    /// Probe rays of the field (every probe's, those dropped inside solid geometry too), and those the
+    /// last update marched through the V-grid (the others kept where they met it).
+    pub rays: usize,
+    pub rays_marched: usize,
+    /// Bytes the preparation keeps to redo only what a change touches: the photon paths' points and
+    /// balances, and where each probe ray met the V-grid.
+    pub kept_bytes: usize,
     /// The stages of the last update, ms (zero for one that did not run).
     pub times: PhotonGridTimes,
     /// Preparations finished so far (background tasks). A change of a gather-only setting
@@ -72,6 +82,70 @@ pub struct PhotonGridActivity {
 pub struct PhotonGridCore {
     pub vgrid: VGrid,
     voxels_key: Option<(u64, u32)>,
+    /// The photon paths of the last preparation, and what they were traced from.
+    paths: PhotonPaths,
+    trace_key: Option<TraceKey>,
+    /// Where the probe rays of the last field met the V-grid.
+    rays: ProbeRays,
+    /// The instances the paths and rays were made in, by key (the snapshot's order): version, world
+    /// bounds and whether the material emits.
+    instances: Vec<(u64, u64, (Vec3, Vec3), bool)>,
+    /// The snapshot's layout generation then: instances added or removed, or the whole snapshot
+    /// touched, redo every path and ray.
+    layout_generation: u64,
+    /// Whether a mesh moved (or changed) between two preparations: from then on the paths' records and
+    /// the probe rays are kept (`PhotonGridActivity::kept_bytes`); a scene where nothing moves does not
+    /// hold them.
+    keep_records: bool,
+}
+
+/// What every photon path depends on besides the geometry: a change of any re-traces them all.
+#[derive(Clone, Debug, PartialEq)]
+struct TraceKey {
+    layout: GridLayout,
+    lights: Vec<SnapshotLight>,
+    environment: u64,
+    exposure: u32,
+    photons: u32,
+    max_reflections: u32,
+}
+
+/// The instances of `snapshot` as [`PhotonGridCore::instances`] keeps them.
+fn instance_table(snapshot: &SceneSnapshot, exposure: f32) -> Vec<(u64, u64, (Vec3, Vec3), bool)> {
+    snapshot
+        .instances()
+        .iter()
+        .map(|i| {
+            let emits = snapshot.materials.get(i.material as usize).is_some_and(|m| m.emission(exposure).max_element() > 0.0);
+            (i.key, i.version, i.bounds, emits)
+        })
+        .collect()
+}
+
+/// The world boxes that changed between two instance tables (the old and new bounds of every instance
+/// moved, re-materialed, added or removed), and whether one of those instances emits light.
+fn changed_boxes(old: &[(u64, u64, (Vec3, Vec3), bool)], new: &[(u64, u64, (Vec3, Vec3), bool)]) -> (Vec<(Vec3, Vec3)>, bool) {
+    let (mut boxes, mut emitters) = (Vec::new(), false);
+    let (mut a, mut b) = (old.iter().peekable(), new.iter().peekable());
+    loop {
+        let (was, is) = match (a.peek(), b.peek()) {
+            (None, None) => break,
+            (Some(x), Some(y)) if x.0 == y.0 => (a.next(), b.next()),
+            (Some(x), Some(y)) if x.0 < y.0 => (a.next(), None),
+            (Some(_), None) => (a.next(), None),
+            _ => (None, b.next()),
+        };
+        if let (Some(x), Some(y)) = (was, is)
+            && x.1 == y.1
+        {
+            continue;
+        }
+        for &(_, _, bounds, emits) in was.into_iter().chain(is) {
+            boxes.push(bounds);
+            emitters |= emits;
+        }
+    }
+    (boxes, emitters)
 }
 
 /// The main-world state: the grids (in a background task while one runs), the running preparation and
@@ -250,16 +324,49 @@ fn prepare(core: &mut PhotonGridCore, snapshot: &SceneSnapshot, key: &FieldKey) 
         times.voxelize_ms = start.elapsed().as_secs_f32() * 1e3;
     }
 
-    // 2. Photons.
+    // What changed since the paths and the probe rays were made: the boxes of the instances that
+    // moved or changed (`None` before the first preparation).
+    let instances = instance_table(snapshot, exposure);
+    let comparable = !core.instances.is_empty() && core.layout_generation == snapshot.layout_generation;
+    let changed = comparable.then(|| changed_boxes(&core.instances, &instances));
+    (core.instances, core.layout_generation) = (instances, snapshot.layout_generation);
+    core.keep_records |= changed.as_ref().is_some_and(|(boxes, _)| !boxes.is_empty());
+
+    // 2. Photons: only the paths that ran through what changed, when only meshes that do not emit
+    //    changed; all of them otherwise.
     let start = std::time::Instant::now();
     let gi_lights: Vec<_> = snapshot.lights.iter().filter(|l| key.scene.gi_lights.contains(&l.entity)).map(|l| l.light).collect();
     let params = TraceParams { photons: settings.photons, max_reflections: settings.max_reflections, seed: 0x9e37_79b9, exposure };
-    let (photons, stats) = grid::trace_photons(snapshot, &gi_lights, snapshot.environment.as_deref(), &core.vgrid, &params);
+    let trace_key = TraceKey {
+        layout,
+        lights: gi_lights.clone(),
+        environment: snapshot.environment_generation,
+        exposure: exposure.to_bits(),
+        photons: settings.photons,
+        max_reflections: settings.max_reflections,
+    };
+    let environment = snapshot.environment.as_deref();
+    let paths_traced = match &changed {
+        Some((boxes, false)) if core.trace_key.as_ref() == Some(&trace_key) => {
+            // One SH cell and a V-cell around a change: what a stored photon's cell and faces read.
+            let margin = layout.cell + layout.v_cell();
+            core.paths.retrace(snapshot, &gi_lights, environment, &core.vgrid, &params, boxes, margin)
+        }
+        _ => {
+            core.paths = PhotonPaths::trace(snapshot, &gi_lights, environment, &core.vgrid, &params);
+            core.trace_key = Some(trace_key);
+            params.photons as usize
+        }
+    };
+    if !core.keep_records {
+        core.paths.forget_paths();
+    }
+    let (photons, stats) = (&core.paths.photons, core.paths.stats);
     times.trace_ms = start.elapsed().as_secs_f32() * 1e3;
 
     // 3. R-grid.
     let start = std::time::Instant::now();
-    let base = grid::accumulate_sorted(&photons, layout.cell_count());
+    let base = grid::accumulate_sorted(photons, layout.cell_count());
     let rgrid = RGrid::new(layout, base, 6);
     times.rgrid_ms = start.elapsed().as_secs_f32() * 1e3;
 
@@ -270,7 +377,11 @@ fn prepare(core: &mut PhotonGridCore, snapshot: &SceneSnapshot, key: &FieldKey) 
         max_distance: DISTANCE_CELLS * layout.cell,
         filter_levels: settings.filter_levels,
     };
-    let field = ShField::build(&core.vgrid, &rgrid, snapshot.environment.as_deref(), &field_params);
+    let changed_geometry = changed.as_ref().map(|(boxes, _)| boxes.as_slice());
+    let (field, rays_marched) = ShField::build_reusing(&core.vgrid, &rgrid, environment, &field_params, &mut core.rays, changed_geometry);
+    if !core.keep_records {
+        core.rays = ProbeRays::default();
+    }
     times.field_ms = start.elapsed().as_secs_f32() * 1e3;
 
     let activity = PhotonGridActivity {
@@ -281,6 +392,10 @@ fn prepare(core: &mut PhotonGridCore, snapshot: &SceneSnapshot, key: &FieldKey) 
         inside: field.inside,
         photons: photons.len(),
         stats,
+        paths_traced,
+        rays: (field.coefficients.len() + field.inside as usize) * settings.sh_directions as usize,
+        rays_marched,
+        kept_bytes: core.paths.bytes() + core.rays.bytes(),
         times,
         ..default()
     };

@@ -370,111 +370,322 @@ pub fn trace_photons(
     vgrid: &VGrid,
     params: &TraceParams,
 ) -> (Vec<Photon>, PhotonStats) {
-    if vgrid.layout.is_none() {
-        return (Vec::new(), PhotonStats::default());
-    }
-    let Some((lo, hi)) = snapshot.bounds() else {
-        return (Vec::new(), PhotonStats::default());
-    };
-    let centre = (lo + hi) * 0.5;
-    let radius = ((hi - lo).length() * 0.5).max(1e-3) * 1.01;
-    let epsilon = snapshot.ray_epsilon();
-    let disc_area = PI * radius * radius;
+    let paths = PhotonPaths::trace(snapshot, lights, environment, vgrid, params);
+    (paths.photons, paths.stats)
+}
 
-    // Sources and their flux.
-    let mut sources: Vec<(Source, Vec3)> = Vec::new();
-    for &light in lights {
-        let flux = match light {
-            SnapshotLight::Directional { illuminance, .. } => illuminance * disc_area,
-            SnapshotLight::Point { intensity, .. } => intensity * 4.0 * PI,
-            SnapshotLight::Spot { intensity, spot_scale, spot_offset, .. } => {
-                let cos_outer = spot_cos_outer(spot_scale, spot_offset);
-                intensity * (2.0 * PI * (1.0 - cos_outer))
+/// The photon list kept path by path, with where each path went, so that a later trace can redo only
+/// the paths a change touches ([`PhotonPaths::retrace`]). Path `k` draws its random numbers from its own
+/// stream (`rng_for(seed, k)`), so a path traced again in an unchanged scene is the same path.
+#[derive(Clone, Debug, Default)]
+pub struct PhotonPaths {
+    /// Every stored photon, path after path (what [`trace_photons`] returns).
+    pub photons: Vec<Photon>,
+    /// Where each path's photons start in `photons` (one more entry than paths).
+    photon_offsets: Vec<u32>,
+    /// The points each path's rays ran between: its origin, then the end of every ray it traced (the
+    /// surface hit, or a point beyond the scene for a ray that left it).
+    points: Vec<Vec3>,
+    /// Where each path's points start in `points` (one more entry than paths).
+    point_offsets: Vec<u32>,
+    /// Each path's flux balance (`paths` and `stored` as counts).
+    path_stats: Vec<PhotonStats>,
+    /// The sum of `path_stats`.
+    pub stats: PhotonStats,
+}
+
+/// One traced path: its photons, ray end points and flux balance.
+#[derive(Default)]
+struct TracedPath {
+    photons: Vec<Photon>,
+    points: Vec<Vec3>,
+    stats: PhotonStats,
+}
+
+
+/// The photon sources of a scene and their flux, with each photon's source (§3.2's emission).
+struct Sources<'a> {
+    sources: Vec<(Source<'a>, Vec3)>,
+    cumulative: Vec<f32>,
+    counts: Vec<u32>,
+    photons: u32,
+    /// The scene's bounding sphere.
+    sphere: (Vec3, f32),
+    epsilon: f32,
+}
+
+impl<'a> Sources<'a> {
+    fn new(snapshot: &SceneSnapshot, lights: &[SnapshotLight], environment: Option<&'a Environment>, params: &TraceParams) -> Option<Self> {
+        let (lo, hi) = snapshot.bounds()?;
+        let centre = (lo + hi) * 0.5;
+        let radius = ((hi - lo).length() * 0.5).max(1e-3) * 1.01;
+        let disc_area = PI * radius * radius;
+        let mut sources: Vec<(Source, Vec3)> = Vec::new();
+        for &light in lights {
+            let flux = match light {
+                SnapshotLight::Directional { illuminance, .. } => illuminance * disc_area,
+                SnapshotLight::Point { intensity, .. } => intensity * 4.0 * PI,
+                SnapshotLight::Spot { intensity, spot_scale, spot_offset, .. } => {
+                    let cos_outer = spot_cos_outer(spot_scale, spot_offset);
+                    intensity * (2.0 * PI * (1.0 - cos_outer))
+                }
+            };
+            sources.push((Source::Light(light), flux));
+        }
+        for (i, tri) in snapshot.triangles() {
+            let (instance, local) = snapshot.locate(i);
+            let Some(material) = snapshot.materials.get(instance.material as usize) else { continue };
+            let emission = material.emission(params.exposure);
+            if !emission.is_finite() || emission.max_element() <= 0.0 {
+                continue;
             }
-        };
-        sources.push((Source::Light(light), flux));
+            let area = triangle_area(&tri);
+            // Two-sided Lambertian emitter: π L_e A from each open face (a face inside its own closed mesh
+            // emits nothing that leaves it, and its photons would be stored as light leaving the emitter).
+            let open = instance.open_sides(local);
+            sources.push((Source::Emitter(i, open), emission.max(Vec3::ZERO) * (open.count_ones() as f32 * PI * area)));
+        }
+        if let Some(env) = environment {
+            let mean = (0..256).map(|i| env.radiance(fibonacci_sphere(i, 256))).sum::<Vec3>() / 256.0;
+            // Radiance over the sphere of directions through a disc facing each one.
+            sources.push((Source::Environment(env, mean), mean * (4.0 * PI * disc_area)));
+        }
+        sources.retain(|(_, flux)| luminance_sum(*flux) > 0.0);
+        let total: f32 = sources.iter().map(|(_, f)| luminance_sum(*f)).sum();
+        if sources.is_empty() || !total.is_finite() || params.photons == 0 {
+            return None;
+        }
+        // Stratified allocation by flux: photon k comes from the source whose cumulative share holds
+        // (k + ½)/N, and carries its flux over the photons it got.
+        let mut cumulative = Vec::with_capacity(sources.len());
+        let mut acc = 0.0;
+        for (_, f) in &sources {
+            acc += luminance_sum(*f) / total;
+            cumulative.push(acc);
+        }
+        let mut this = Self { sources, cumulative, counts: Vec::new(), photons: params.photons, sphere: (centre, radius), epsilon: snapshot.ray_epsilon() };
+        let mut counts = vec![0u32; this.sources.len()];
+        for k in 0..params.photons {
+            counts[this.source_of(k)] += 1;
+        }
+        this.counts = counts;
+        Some(this)
     }
-    for (i, tri) in snapshot.triangles() {
-        let (instance, local) = snapshot.locate(i);
-        let Some(material) = snapshot.materials.get(instance.material as usize) else { continue };
-        let emission = material.emission(params.exposure);
-        if !emission.is_finite() || emission.max_element() <= 0.0 {
+
+    fn source_of(&self, k: u32) -> usize {
+        let u = (k as f32 + 0.5) / self.photons as f32;
+        self.cumulative.partition_point(|&c| c < u).min(self.sources.len() - 1)
+    }
+
+    /// Photon `k`'s path.
+    /// Photon `k`'s path, into `path` (cleared first: one buffer serves many paths).
+    fn trace(&self, snapshot: &SceneSnapshot, vgrid: &VGrid, params: &TraceParams, k: u32, path: &mut TracedPath) {
+        path.photons.clear();
+        path.points.clear();
+        path.stats = PhotonStats::default();
+        let s = self.source_of(k);
+        let (source, flux) = &self.sources[s];
+        let mut rng = rng_for(params.seed, k as u64);
+        let share = *flux / self.counts[s] as f32;
+        let Some((origin, direction, power, falloff)) = emit(snapshot, source, share, self.sphere, &mut rng, self.epsilon) else {
+            return;
+        };
+        if !power.is_finite() || power.max_element() <= 0.0 {
+            return;
+        }
+        path.stats.paths = 1;
+        path.stats.emitted = power;
+        // The emission leaves an emitter: stored, like a reflection, with its direction.
+        let emission = matches!(source, Source::Emitter(..));
+        let start = PathStart { origin, direction, power, falloff, emission };
+        let far = 4.0 * self.sphere.1;
+        trace_path(snapshot, vgrid, params, start, self.epsilon, far, &mut rng, path);
+    }
+
+    /// The paths `ks`, traced on every core in runs of 1 024, in the order of `ks`.
+    fn trace_many(&self, snapshot: &SceneSnapshot, vgrid: &VGrid, params: &TraceParams, ks: &[u32]) -> PhotonPaths {
+        let runs: Vec<PhotonPaths> = ks
+            .par_chunks(1024)
+            .map(|run| {
+                let (mut out, mut path) = (PhotonPaths::default(), TracedPath::default());
+                for &k in run {
+                    self.trace(snapshot, vgrid, params, k, &mut path);
+                    out.push(&path);
+                }
+                out
+            })
+            .collect();
+        let mut all = PhotonPaths::default();
+        for run in &runs {
+            all.copy_runs(run, 0..run.len());
+        }
+        all
+    }
+}
+
+impl PhotonPaths {
+    /// Traces every path (what [`trace_photons`] does), keeping each path's record.
+    pub fn trace(snapshot: &SceneSnapshot, lights: &[SnapshotLight], environment: Option<&Environment>, vgrid: &VGrid, params: &TraceParams) -> Self {
+        let Some(sources) = vgrid.layout.and(Sources::new(snapshot, lights, environment, params)) else {
+            return Self::default();
+        };
+        let all: Vec<u32> = (0..params.photons).collect();
+        let mut paths = sources.trace_many(snapshot, vgrid, params, &all);
+        paths.sum_stats();
+        paths
+    }
+
+    /// Bytes held by what is kept besides the photons (the paths' points, offsets and balances).
+    pub fn bytes(&self) -> usize {
+        self.points.len() * size_of::<Vec3>()
+            + (self.photon_offsets.len() + self.point_offsets.len()) * 4
+            + self.path_stats.len() * size_of::<PhotonStats>()
+    }
+
+    /// Drops the paths' records, keeping the photons and their balance: a later
+    /// [`retrace`](Self::retrace) traces every path. (A scene in which nothing moves need not hold them.)
+    pub fn forget_paths(&mut self) {
+        (self.points, self.photon_offsets, self.point_offsets, self.path_stats) = Default::default();
+    }
+
+    /// Paths whose records are kept.
+    pub fn len(&self) -> usize {
+        self.path_stats.len()
+    }
+
+    /// Whether no path's record is kept.
+    pub fn is_empty(&self) -> bool {
+        self.path_stats.is_empty()
+    }
+
+    /// Appends one path.
+    fn push(&mut self, path: &TracedPath) {
+        if self.photon_offsets.is_empty() {
+            self.photon_offsets.push(0);
+            self.point_offsets.push(0);
+        }
+        self.photons.extend_from_slice(&path.photons);
+        self.points.extend_from_slice(&path.points);
+        self.photon_offsets.push(self.photons.len() as u32);
+        self.point_offsets.push(self.points.len() as u32);
+        self.path_stats.push(path.stats);
+    }
+
+    /// Whether path `k` ran a ray through one of `boxes`.
+    fn touches(&self, k: usize, boxes: &[(Vec3, Vec3)]) -> bool {
+        let points = &self.points[self.point_offsets[k] as usize..self.point_offsets[k + 1] as usize];
+        points.windows(2).any(|w| boxes.iter().any(|&b| segment_meets_box(w[0], w[1], b)))
+    }
+
+    /// Brings the paths up to date with a scene in which only what lies in `changed` (world boxes:
+    /// the old and new bounds of what moved) differs from the scene they were traced in, same sources and
+    /// same settings: the paths whose rays ran through a box grown by `margin` (what a photon's storage
+    /// reads around it: one SH cell) are traced again, the others kept. The result is the full trace's.
+    /// Without the paths' records ([`forget_paths`](Self::forget_paths)) every path is traced, unless
+    /// nothing changed. Returns how many paths were traced again.
+    #[expect(clippy::too_many_arguments, reason = "the trace's inputs and what changed")]
+    pub fn retrace(
+        &mut self,
+        snapshot: &SceneSnapshot,
+        lights: &[SnapshotLight],
+        environment: Option<&Environment>,
+        vgrid: &VGrid,
+        params: &TraceParams,
+        changed: &[(Vec3, Vec3)],
+        margin: f32,
+    ) -> usize {
+        let Some(sources) = vgrid.layout.and(Sources::new(snapshot, lights, environment, params)) else {
+            *self = Self::default();
+            return 0;
+        };
+        if changed.is_empty() && self.stats.paths > 0 {
+            return 0;
+        }
+        if self.len() != params.photons as usize {
+            *self = Self::trace(snapshot, lights, environment, vgrid, params);
+            return params.photons as usize;
+        }
+        let boxes: Vec<(Vec3, Vec3)> = changed.iter().map(|&(lo, hi)| (lo - margin, hi + margin)).collect();
+        let redo: Vec<u32> = (0..params.photons).into_par_iter().filter(|&k| self.touches(k as usize, &boxes)).collect();
+        if redo.is_empty() {
+            return 0;
+        }
+        let traced = sources.trace_many(snapshot, vgrid, params, &redo);
+        // The kept paths' runs are copied whole between the paths traced again.
+        let old = std::mem::take(self);
+        self.photons.reserve(old.photons.len());
+        self.points.reserve(old.points.len());
+        let mut next = 0usize;
+        for (i, &k) in redo.iter().enumerate() {
+            self.copy_runs(&old, next..k as usize);
+            self.copy_runs(&traced, i..i + 1);
+            next = k as usize + 1;
+        }
+        self.copy_runs(&old, next..old.len());
+        self.sum_stats();
+        redo.len()
+    }
+
+    /// Appends the paths `range` of `old` as they are.
+    fn copy_runs(&mut self, old: &Self, range: std::ops::Range<usize>) {
+        if range.is_empty() {
+            return;
+        }
+        if self.photon_offsets.is_empty() {
+            self.photon_offsets.push(0);
+            self.point_offsets.push(0);
+        }
+        let (p0, q0) = (old.photon_offsets[range.start], old.point_offsets[range.start]);
+        let (p1, q1) = (old.photon_offsets[range.end], old.point_offsets[range.end]);
+        let (dp, dq) = (self.photons.len() as i64 - p0 as i64, self.points.len() as i64 - q0 as i64);
+        self.photons.extend_from_slice(&old.photons[p0 as usize..p1 as usize]);
+        self.points.extend_from_slice(&old.points[q0 as usize..q1 as usize]);
+        self.photon_offsets.extend(old.photon_offsets[range.start + 1..=range.end].iter().map(|&o| (o as i64 + dp) as u32));
+        self.point_offsets.extend(old.point_offsets[range.start + 1..=range.end].iter().map(|&o| (o as i64 + dq) as u32));
+        self.path_stats.extend_from_slice(&old.path_stats[range]);
+    }
+
+    /// Sums the paths' balances into `stats`, in double precision: hundreds of thousands of paths, each
+    /// a small share.
+    fn sum_stats(&mut self) {
+        let mut sums = [bevy::math::DVec3::ZERO; 4];
+        let mut stats = PhotonStats::default();
+        for s in &self.path_stats {
+            for (sum, v) in sums.iter_mut().zip([s.emitted, s.absorbed, s.escaped, s.truncated]) {
+                *sum += v.as_dvec3();
+            }
+            stats.paths += s.paths;
+            stats.stored += s.stored;
+        }
+        [stats.emitted, stats.absorbed, stats.escaped, stats.truncated] = sums.map(|v| v.as_vec3());
+        self.stats = stats;
+    }
+}
+
+/// Whether the segment from `a` to `b` meets the box `(lo, hi)` (slab test; a degenerate segment is
+/// a point).
+pub fn segment_meets_box(a: Vec3, b: Vec3, (lo, hi): (Vec3, Vec3)) -> bool {
+    let d = b - a;
+    let (mut t0, mut t1) = (0.0f32, 1.0f32);
+    for k in 0..3 {
+        if d[k].abs() < 1e-12 {
+            if a[k] < lo[k] || a[k] > hi[k] {
+                return false;
+            }
             continue;
         }
-        let area = triangle_area(&tri);
-        // Two-sided Lambertian emitter: π L_e A from each open face (a face inside its own closed mesh
-        // emits nothing that leaves it, and its photons would be stored as light leaving the emitter).
-        let open = instance.open_sides(local);
-        sources.push((Source::Emitter(i, open), emission.max(Vec3::ZERO) * (open.count_ones() as f32 * PI * area)));
+        let inv = 1.0 / d[k];
+        let (mut near, mut far) = ((lo[k] - a[k]) * inv, (hi[k] - a[k]) * inv);
+        if near > far {
+            std::mem::swap(&mut near, &mut far);
+        }
+        t0 = t0.max(near);
+        t1 = t1.min(far);
+        if t0 > t1 {
+            return false;
+        }
     }
-    if let Some(env) = environment {
-        let mean = (0..256).map(|i| env.radiance(fibonacci_sphere(i, 256))).sum::<Vec3>() / 256.0;
-        // Radiance over the sphere of directions through a disc facing each one.
-        sources.push((Source::Environment(env, mean), mean * (4.0 * PI * disc_area)));
-    }
-    sources.retain(|(_, flux)| luminance_sum(*flux) > 0.0);
-    let total: f32 = sources.iter().map(|(_, f)| luminance_sum(*f)).sum();
-    if sources.is_empty() || !total.is_finite() || params.photons == 0 {
-        return (Vec::new(), PhotonStats::default());
-    }
-    // Stratified allocation by flux: photon k comes from the source whose cumulative share holds
-    // (k + ½)/N, and carries its flux over the photons it got.
-    let n = params.photons;
-    let mut counts = vec![0u32; sources.len()];
-    let mut cumulative = Vec::with_capacity(sources.len());
-    let mut acc = 0.0;
-    for (_, f) in &sources {
-        acc += luminance_sum(*f) / total;
-        cumulative.push(acc);
-    }
-    let source_of = |k: u32| {
-        let u = (k as f32 + 0.5) / n as f32;
-        cumulative.partition_point(|&c| c < u).min(sources.len() - 1)
-    };
-    for k in 0..n {
-        counts[source_of(k)] += 1;
-    }
-    // Emitter triangles of the same source class are sampled by their own flux above; each source's
-    // photons share its flux.
-    let results: Vec<(Vec<Photon>, PhotonStats)> = (0..n)
-        .into_par_iter()
-        .chunks(1024)
-        .map(|chunk| {
-            let mut photons = Vec::new();
-            let mut stats = PhotonStats::default();
-            for k in chunk {
-                let s = source_of(k);
-                let (source, flux) = &sources[s];
-                let mut rng = rng_for(params.seed, k as u64);
-                let share = *flux / counts[s] as f32;
-                let Some((origin, direction, power, falloff)) = emit(snapshot, source, share, (centre, radius), &mut rng, epsilon) else {
-                    continue;
-                };
-                if !power.is_finite() || power.max_element() <= 0.0 {
-                    continue;
-                }
-                stats.paths += 1;
-                stats.emitted += power;
-                // The emission leaves an emitter: stored, like a reflection, with its direction.
-                let emission = matches!(source, Source::Emitter(..));
-                let path = PathStart { origin, direction, power, falloff, emission };
-                trace_path(snapshot, vgrid, params, path, epsilon, &mut rng, &mut photons, &mut stats);
-            }
-            (photons, stats)
-        })
-        .collect();
-    let mut photons = Vec::with_capacity(results.iter().map(|r| r.0.len()).sum());
-    let mut stats = PhotonStats::default();
-    for (p, s) in results {
-        photons.extend(p);
-        stats.emitted += s.emitted;
-        stats.absorbed += s.absorbed;
-        stats.escaped += s.escaped;
-        stats.truncated += s.truncated;
-        stats.paths += s.paths;
-        stats.stored += s.stored;
-    }
-    (photons, stats)
+    true
 }
 
 /// `cos(outer)` of a spot cone from Bevy's scale and offset.
@@ -583,6 +794,8 @@ fn store_photon(
 }
 
 /// Follows one photon through up to `max_reflections` stored diffuse reflections.
+/// Records in `path` the points its rays ran between (a ray that leaves the scene ends `far` metres
+/// out).
 #[expect(clippy::too_many_arguments, reason = "one photon path and where it ends up")]
 fn trace_path(
     snapshot: &SceneSnapshot,
@@ -590,14 +803,21 @@ fn trace_path(
     params: &TraceParams,
     start: PathStart,
     epsilon: f32,
+    far: f32,
     rng: &mut rand_pcg::Pcg32,
-    photons: &mut Vec<Photon>,
-    stats: &mut PhotonStats,
+    path: &mut TracedPath,
 ) {
     let Some(layout) = vgrid.layout else { return };
+    let TracedPath { photons, points, stats } = path;
     let PathStart { mut origin, mut direction, mut power, mut falloff, emission } = start;
     let mut reflections = 0;
-    let mut hit = snapshot.intersect(origin, direction, epsilon, f32::INFINITY);
+    let ray = |origin: Vec3, direction: Vec3, points: &mut Vec<Vec3>| {
+        let hit = snapshot.intersect(origin, direction, epsilon, f32::INFINITY);
+        points.push(origin + direction * hit.as_ref().map_or(far, |h| h.t));
+        hit
+    };
+    points.push(origin);
+    let mut hit = ray(origin, direction, points);
     if emission {
         store_photon(vgrid, layout, origin, direction, power, hit.as_ref(), photons, stats);
     }
@@ -633,7 +853,7 @@ fn trace_path(
         reflections += 1;
         origin = position + n * epsilon;
         direction = out;
-        hit = snapshot.intersect(origin, direction, epsilon, f32::INFINITY);
+        hit = ray(origin, direction, points);
         // The photon lies on the side it leaves from, in the SH cell whose faces it lights.
         let stored_at = position + n * (layout.v_cell() * 0.01).max(epsilon);
         store_photon(vgrid, layout, stored_at, out, power, hit.as_ref(), photons, stats);
@@ -808,12 +1028,60 @@ pub struct ShField {
 /// How far the probe's rays see the back of surfaces before it counts as inside solid geometry.
 const INSIDE_FRACTION: f32 = 0.1;
 
-/// The incoming radiance along one probe ray and the distance to what it sees (§3.4.2–3.4.3).
-fn probe_ray(vgrid: &VGrid, rgrid: &RGrid, env: Option<&Environment>, c: Vec3, d: Vec3, params: &FieldParams) -> (Vec3, f32, bool) {
+/// Where each probe ray of a field met the V-grid, kept so that the next field after a local change
+/// marches only the rays that run through it ([`ShField::build_reusing`]): per probe candidate (an SH
+/// cell, sorted), per direction, the linear index of the V-cell hit or [`RAY_MISSED`].
+#[derive(Clone, Debug, Default)]
+pub struct ProbeRays {
+    layout: Option<GridLayout>,
+    directions: u32,
+    cells: Vec<u32>,
+    hits: Vec<u32>,
+}
+
+/// A probe ray that left the grid.
+pub const RAY_MISSED: u32 = u32::MAX;
+
+impl ProbeRays {
+    /// Bytes held.
+    pub fn bytes(&self) -> usize {
+        (self.cells.len() + self.hits.len()) * 4
+    }
+}
+
+/// The V-cell (linear index) a probe ray from `c` along `d` meets first, or [`RAY_MISSED`].
+fn probe_hit(vgrid: &VGrid, layout: &GridLayout, c: Vec3, d: Vec3) -> u32 {
+    vgrid.march(c, d).map_or(RAY_MISSED, |(v, _)| {
+        let dims = layout.v_dims();
+        (v.z * dims.y + v.y) * dims.x + v.x
+    })
+}
+
+/// The distance along the ray from `c` in the unit direction `d` at which it enters the V-cell `v`
+/// (zero when it starts inside).
+fn entry_distance(layout: &GridLayout, v: UVec3, c: Vec3, d: Vec3) -> f32 {
+    let v_cell = layout.v_cell();
+    let lo = layout.origin + v.as_vec3() * v_cell;
+    let mut t = 0.0f32;
+    for k in 0..3 {
+        if d[k].abs() > 1e-8 {
+            let plane = if d[k] > 0.0 { lo[k] } else { lo[k] + v_cell };
+            t = t.max((plane - c[k]) / d[k]);
+        }
+    }
+    t
+}
+
+/// The incoming radiance along one probe ray that met the V-cell `hit` ([`probe_hit`]) and the
+/// distance to it (§3.4.2–3.4.3), and whether it met the back of a surface.
+fn probe_ray(vgrid: &VGrid, rgrid: &RGrid, env: Option<&Environment>, c: Vec3, d: Vec3, hit: u32, params: &FieldParams) -> (Vec3, f32, bool) {
     let layout = vgrid.layout.expect("a grid");
-    let Some((v, t)) = vgrid.march(c, d) else {
+    if hit == RAY_MISSED {
         return (env.map_or(Vec3::ZERO, |e| e.radiance(d)), params.max_distance, false);
-    };
+    }
+    let dims = layout.v_dims();
+    let v = UVec3::new(hit % dims.x, (hit / dims.x) % dims.y, hit / (dims.x * dims.y));
+    let t = entry_distance(&layout, v, c, d);
     let data = vgrid.cell(v).unwrap_or_default();
     // The V-cell's mean normal turned towards the ray (surfaces are two-sided); where its normals cancel
     // (both faces of a thin wall, a sharp edge) the direction back along the ray.
@@ -844,7 +1112,27 @@ impl ShField {
     /// Projects the incoming radiance and distance at every probe (Eq. 1 with `N_sh` directions of the
     /// spherical Fibonacci lattice).
     pub fn build(vgrid: &VGrid, rgrid: &RGrid, env: Option<&Environment>, params: &FieldParams) -> Self {
-        let Some(layout) = vgrid.layout else { return Self::default() };
+        Self::build_reusing(vgrid, rgrid, env, params, &mut ProbeRays::default(), None).0
+    }
+
+    /// [`build`](Self::build), reusing the probe rays of the last field built with `rays` where only the
+    /// geometry inside `changed` (world boxes) differs since: a ray that does not pass within one SH
+    /// cell (and a V-cell) of a changed box crosses the same cells and meets the same V-cell, and only its radiance is
+    /// read again from `rgrid`; the others are marched. `None` (or another grid or direction count)
+    /// marches every ray. `rays` is left holding this field's rays. Returns the field and the rays
+    /// marched. The field is the one [`build`](Self::build) makes.
+    pub fn build_reusing(
+        vgrid: &VGrid,
+        rgrid: &RGrid,
+        env: Option<&Environment>,
+        params: &FieldParams,
+        rays: &mut ProbeRays,
+        changed: Option<&[(Vec3, Vec3)]>,
+    ) -> (Self, usize) {
+        let Some(layout) = vgrid.layout else {
+            *rays = ProbeRays::default();
+            return (Self::default(), 0);
+        };
         let dims = layout.dims.as_ivec3();
         // Boundary cells and their 26 neighbours.
         let probes: Vec<usize> = (0..layout.cell_count())
@@ -863,30 +1151,72 @@ impl ShField {
             .collect();
         let n = params.directions.max(1);
         let directions: Vec<Vec3> = (0..n).map(|i| fibonacci_sphere(i, n)).collect();
+        let bases: Vec<[f32; 9]> = directions.iter().map(|&d| basis(d)).collect();
         let weight = 4.0 * PI / n as f32;
-        let projected: Vec<Option<[Vec4; 9]>> = probes
+        // The kept rays, when they were made on this grid with these directions.
+        let margin = layout.cell + layout.v_cell();
+        let boxes: Option<Vec<(Vec3, Vec3)>> = changed
+            .filter(|_| rays.layout == Some(layout) && rays.directions == n)
+            .map(|c| c.iter().map(|&(lo, hi)| (lo - margin, hi + margin)).collect());
+        let old = std::mem::take(rays);
+        let reach = (layout.dims.as_vec3() * layout.cell).length() + layout.cell;
+        let v_cell = layout.v_cell();
+        let traced: Vec<(Vec<u32>, usize, Option<[Vec4; 9]>)> = probes
             .par_iter()
             .map(|&i| {
                 let c = layout.centre(layout.coords(i));
+                let kept = boxes.as_ref().and_then(|boxes| {
+                    let k = old.cells.binary_search(&(i as u32)).ok()?;
+                    Some((boxes, &old.hits[k * n as usize..(k + 1) * n as usize]))
+                });
+                let mut hits = Vec::with_capacity(n as usize);
+                let mut marched = 0;
                 let mut coefficients = [Vec4::ZERO; 9];
                 let mut back = 0u32;
-                for &d in &directions {
-                    let (radiance, distance, backface) = probe_ray(vgrid, rgrid, env, c, d, params);
+                for (j, &d) in directions.iter().enumerate() {
+                    let hit = match kept {
+                        Some((boxes, old)) => {
+                            let h = old[j];
+                            let end = if h == RAY_MISSED {
+                                c + d * reach
+                            } else {
+                                let v_dims = layout.v_dims();
+                                let v = UVec3::new(h % v_dims.x, (h / v_dims.x) % v_dims.y, h / (v_dims.x * v_dims.y));
+                                c + d * (entry_distance(&layout, v, c, d) + 2.0 * v_cell)
+                            };
+                            if boxes.iter().any(|&b| segment_meets_box(c, end, b)) {
+                                marched += 1;
+                                probe_hit(vgrid, &layout, c, d)
+                            } else {
+                                h
+                            }
+                        }
+                        None => {
+                            marched += 1;
+                            probe_hit(vgrid, &layout, c, d)
+                        }
+                    };
+                    hits.push(hit);
+                    let (radiance, distance, backface) = probe_ray(vgrid, rgrid, env, c, d, hit, params);
                     back += u32::from(backface);
                     let value = radiance.extend(distance) * weight;
-                    let y = basis(d);
-                    for k in 0..9 {
-                        coefficients[k] += value * y[k];
+                    for (c, y) in coefficients.iter_mut().zip(bases[j]) {
+                        *c += value * y;
                     }
                 }
                 let finite = coefficients.iter().all(|c| c.is_finite());
-                (finite && (back as f32) < INSIDE_FRACTION * n as f32).then_some(coefficients)
+                (hits, marched, (finite && (back as f32) < INSIDE_FRACTION * n as f32).then_some(coefficients))
             })
             .collect();
         let mut cell_probe = vec![u32::MAX; layout.cell_count()];
         let mut coefficients = Vec::with_capacity(probes.len());
         let mut inside = 0;
-        for (&i, p) in probes.iter().zip(projected) {
+        let mut marched = 0;
+        let mut kept = ProbeRays { layout: Some(layout), directions: n, cells: Vec::with_capacity(probes.len()), hits: Vec::with_capacity(probes.len() * n as usize) };
+        for (&i, (hits, m, p)) in probes.iter().zip(traced) {
+            kept.cells.push(i as u32);
+            kept.hits.extend_from_slice(&hits);
+            marched += m;
             match p {
                 Some(c) => {
                     cell_probe[i] = coefficients.len() as u32;
@@ -895,7 +1225,8 @@ impl ShField {
                 None => inside += 1,
             }
         }
-        Self { layout: Some(layout), cell_probe, coefficients, inside }
+        *rays = kept;
+        (Self { layout: Some(layout), cell_probe, coefficients, inside }, marched)
     }
 
     /// The interpolated coefficients at `x` on a surface with unit normal `n` (§4.1): the probes of the
@@ -1027,6 +1358,71 @@ mod tests {
             shadows_enabled: true,
         };
         SceneSnapshot::build(triangles, vec![grey(albedo)], vec![], vec![light])
+    }
+
+    /// A box moved inside a lit room: only the photon paths and probe rays that ran near its old or
+    /// new place are traced again, and the photons and the field are those of a trace from scratch.
+    #[test]
+    fn a_moved_box_retraces_only_the_paths_and_rays_near_it_and_gives_the_full_result() {
+        let mut snapshot = closed_box(1.0, 0.6);
+        let mut cube = Vec::new();
+        for axis in 0..3 {
+            for sign in [-1.0f32, 1.0] {
+                let n = Vec3::AXES[axis] * sign * 0.1;
+                let (u, v) = (Vec3::AXES[(axis + 1) % 3] * 0.1, Vec3::AXES[(axis + 2) % 3] * 0.1);
+                cube.extend(quad([n - u - v, n + u - v, n + u + v, n - u + v], 0));
+            }
+        }
+        let cube = std::sync::Arc::new(crate::scene::MeshGeometry::new(cube));
+        snapshot.set_instance(100, cube, bevy::math::Affine3A::from_translation(Vec3::new(-0.6, -0.85, 0.4)), 0);
+        snapshot.commit();
+        let (lo, hi) = snapshot.bounds().unwrap();
+        let layout = GridLayout::fit(lo, hi, 16);
+        let lights: Vec<_> = snapshot.lights.iter().map(|l| l.light).collect();
+        let params = TraceParams { photons: 20_000, max_reflections: 4, seed: 5, exposure: 1.0 };
+        let field_params = FieldParams { directions: 64, max_distance: 4.0 * layout.cell, filter_levels: 2 };
+        let vgrid = VGrid::build(&snapshot, layout);
+        let mut paths = PhotonPaths::trace(&snapshot, &lights, None, &vgrid, &params);
+        let rgrid = RGrid::new(layout, accumulate_sorted(&paths.photons, layout.cell_count()), 6);
+        let mut rays = ProbeRays::default();
+        let (_, marched) = ShField::build_reusing(&vgrid, &rgrid, None, &field_params, &mut rays, None);
+        assert_eq!(marched, rays.hits.len(), "a first field marches every ray");
+
+        let before = snapshot.instance(100).unwrap().bounds;
+        snapshot.set_instance_transform(100, bevy::math::Affine3A::from_translation(Vec3::new(-0.45, -0.85, 0.4)));
+        snapshot.commit();
+        assert_eq!(snapshot.bounds().unwrap(), (lo, hi));
+        let after = snapshot.instance(100).unwrap().bounds;
+        let vgrid = VGrid::build(&snapshot, layout);
+        let retraced = paths.retrace(&snapshot, &lights, None, &vgrid, &params, &[before, after], layout.cell + layout.v_cell());
+        let full = PhotonPaths::trace(&snapshot, &lights, None, &vgrid, &params);
+        assert!(retraced > 0 && retraced < params.photons as usize / 2, "{retraced} of {} paths traced again", params.photons);
+        assert_eq!(paths.photons, full.photons, "the photons of the paths kept and traced again are the full trace's");
+        assert_eq!((paths.stats.paths, paths.stats.stored), (full.stats.paths, full.stats.stored));
+        for (a, b) in [(paths.stats.emitted, full.stats.emitted), (paths.stats.absorbed, full.stats.absorbed), (paths.stats.escaped, full.stats.escaped)] {
+            assert!((a - b).abs().max_element() <= 1e-3 * b.abs().max_element().max(1.0), "{a} against {b}");
+        }
+
+        let rgrid = RGrid::new(layout, accumulate_sorted(&full.photons, layout.cell_count()), 6);
+        let total = rays.hits.len();
+        let (field, marched) = ShField::build_reusing(&vgrid, &rgrid, None, &field_params, &mut rays, Some(&[before, after]));
+        let fresh = ShField::build(&vgrid, &rgrid, None, &field_params);
+        assert!(marched > 0 && marched < total / 2, "{marched} of {total} rays marched again");
+        assert_eq!(field.cell_probe, fresh.cell_probe);
+        assert_eq!(field.coefficients, fresh.coefficients, "the field is the one built from scratch");
+        assert_eq!(field.inside, fresh.inside);
+    }
+
+    #[test]
+    fn segments_meet_boxes_they_cross_and_miss_the_others() {
+        let b = (Vec3::splat(-1.0), Vec3::splat(1.0));
+        assert!(segment_meets_box(Vec3::new(-5.0, 0.0, 0.0), Vec3::new(5.0, 0.0, 0.0), b));
+        assert!(segment_meets_box(Vec3::ZERO, Vec3::ZERO, b), "a point inside");
+        assert!(segment_meets_box(Vec3::new(0.5, 0.5, 0.5), Vec3::new(3.0, 3.0, 3.0), b), "starting inside");
+        assert!(!segment_meets_box(Vec3::new(-5.0, 2.0, 0.0), Vec3::new(5.0, 2.0, 0.0), b), "passing above");
+        assert!(!segment_meets_box(Vec3::new(-5.0, 0.0, 0.0), Vec3::new(-2.0, 0.0, 0.0), b), "ending before it");
+        assert!(!segment_meets_box(Vec3::new(-3.0, 0.0, 0.0), Vec3::new(0.0, 3.5, 0.0), b), "cutting past its corner");
+        assert!(segment_meets_box(Vec3::new(-3.0, 0.0, 0.0), Vec3::new(0.0, 1.4, 0.0), b), "cutting its corner");
     }
 
     fn trace(snapshot: &SceneSnapshot, photons: u32, reflections: u32, resolution: u32) -> (GridLayout, Vec<Photon>, PhotonStats) {
@@ -1329,7 +1725,7 @@ mod against_the_tracer {
             let c = layout.centre(layout.cell_of(p).unwrap());
             for i in 0..field.directions {
                 let d = fibonacci_sphere(i, field.directions);
-                ours += luminance_sum(probe_ray(&vgrid, &rgrid, None, c, d, &field).0);
+                ours += luminance_sum(probe_ray(&vgrid, &rgrid, None, c, d, probe_hit(&vgrid, &layout, c, d), &field).0);
                 let t = incident_radiance(&snapshot, c, d, &settings, 16, (k as u64) << 16 | i as u64);
                 theirs += luminance_sum(t[0] + t[1] + t[2]);
             }
@@ -1337,3 +1733,5 @@ mod against_the_tracer {
         assert!((0.85..1.1).contains(&(ours / theirs)), "probe radiance {:.3} of the truth's", ours / theirs);
     }
 }
+
+
