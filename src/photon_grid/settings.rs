@@ -19,8 +19,9 @@ pub struct PhotonGridSettings {
     /// included), in the background.
     pub resolution: u32,
     /// Photons emitted per update over all sources. Range 1 024 – 4 194 304; low 65 536, medium 262 144
-    /// (the paper's), high 1 048 576. Cost: linear (tracing and the R-grid's sort). A change: new
-    /// photons, R-grid and field (the V-grid is kept), in the background.
+    /// (the paper's), high 1 048 576. Cost: linear (tracing and the R-grid's sort); once a mesh has
+    /// moved, about 100 bytes a path are kept so that a moved mesh re-traces only the paths that ran
+    /// near it. A change: new photons, R-grid and field (the V-grid is kept), in the background.
     pub photons: u32,
     /// Stored reflections per photon path (the final gather adds one more bounce); Russian roulette ends
     /// most paths earlier. Range 1–32; low 4 (the paper's), medium 8 (the default), high 16. The paper
@@ -30,8 +31,9 @@ pub struct PhotonGridSettings {
     /// field, in the background.
     pub max_reflections: u32,
     /// Ray directions per SH probe (`N_sh`). Range 16–2048; low 128, medium 256, high 400 (the
-    /// paper's). Cost: linear in the field's construction. A change: new photons, R-grid and field, in
-    /// the background.
+    /// paper's). Cost: linear in the field's construction; once a mesh has moved, 4 bytes a ray are kept
+    /// so that a moved mesh marches only the rays that ran near it. A change: a new field (every ray
+    /// marched; the photons are kept), in the background.
     pub sh_directions: u32,
     /// The coarsest R-grid level the radiance filter of §3.4.3 may read for a far hit (level `k` has
     /// cells `2^k` times the SH cell's side); 0 reads the base level only. Range 0–5; default 1 (the
@@ -39,7 +41,8 @@ pub struct PhotonGridSettings {
     /// and spreads a small surface's flux over its whole face: block RMSE / energy on `cornell` 0.109 /
     /// 0.96 with 0, 0.141 / 0.92 with 1, 0.211 / 0.86 unbounded; on `cellar` 0.199 / 0.88, 0.181 / 1.02,
     /// 0.290 / 1.10 (the base level alone is darker where photons are few). Cost: none per frame; a
-    /// change: new photons, R-grid and field, in the background.
+    /// change: a new field, in the background (the photons are kept; after a mesh has moved, so are
+    /// the probe rays' hits, and only their radiance is read again).
     pub filter_levels: u32,
     /// Hemisphere directions of the final gather (`N_d`, §4.2); 0 integrates the nine coefficients
     /// exactly. Range 0–256; default 0. Cost: per pixel, linear (0 costs about as much as 4). A change
