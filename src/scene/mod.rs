@@ -640,6 +640,29 @@ pub struct SceneSnapshot {
     pub environment_generation: u64,
 }
 
+/// Below this many instances the top-level BVH is built without obvhs' reinsertion pass, so that the
+/// build never leaves the calling thread.
+///
+/// The top level is rebuilt on the main thread by every [`SceneSnapshot::commit`] that moved an
+/// instance. obvhs' reinsertion pass runs on rayon's global pool whatever the input's size, and called
+/// from the main thread each of its parallel loops waits until a pool thread is scheduled: measured in
+/// `dynamic` with one mesh moving, a commit of 12 instances took 1.2–7.7 ms while the photon grid's or the
+/// VPLs' background work kept both cores busy (and microseconds without it), the worst main-thread
+/// frames of those methods. Below 2 000 instances the rest of the build (PLOC, the sort: rayon joins only
+/// above 2 000 elements) runs on the calling thread, and a top level that small gains little from
+/// reinsertion.
+const TLAS_SEQUENTIAL_BELOW: usize = 2000;
+
+/// obvhs' build parameters for a top level over `instances` instances ([`TLAS_SEQUENTIAL_BELOW`]).
+fn tlas_build_params(instances: usize) -> BvhBuildParams {
+    let medium = BvhBuildParams::medium_build();
+    if instances < TLAS_SEQUENTIAL_BELOW {
+        BvhBuildParams { reinsertion_batch_ratio: 0.0, post_collapse_reinsertion_batch_ratio_multiplier: 0.0, ..medium }
+    } else {
+        medium
+    }
+}
+
 /// A triangle given to [`SceneSnapshot::build`] (world space) or [`MeshGeometry::new`] (local space).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct InputTriangle {
@@ -884,7 +907,7 @@ impl SceneSnapshot {
                     Aabb::new(to_bvh(i.bounds.0 - pad), to_bvh(i.bounds.1 + pad))
                 })
                 .collect();
-            build_cwbvh(&boxes, BvhBuildParams::medium_build(), &mut Default::default())
+            build_cwbvh(&boxes, tlas_build_params(boxes.len()), &mut Default::default())
         });
         if self.materials.is_empty() {
             self.materials.push(SnapshotMaterial::DEFAULT_GREY);
