@@ -188,8 +188,8 @@ pub struct MainThreadCost {
     /// itself (elements, links, illumination) runs in the background ([`background`]).
     pub radiosity_ms: f32,
     /// The photon grid's main-thread part: polling its background preparation, starting the next and
-    /// writing the blended field. The preparation itself (voxels, photons, R-grid, SH field) runs in
-    /// the background.
+    /// handing a new field and its blend weight to the render world (the blend itself runs in the
+    /// gather). The preparation itself (voxels, photons, R-grid, SH field) runs in the background.
     pub photon_grid_ms: f32,
 }
 

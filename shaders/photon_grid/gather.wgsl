@@ -29,6 +29,8 @@ struct PhotonGridUniform {
     gather_samples: u32,
     obscurance_distance: f32,
     probes: u32,
+    // The new field's weight while it blends in over the previous one (1 once it has).
+    blend: f32,
 }
 
 @group(0) @binding(0) var<uniform> view: View;
@@ -40,6 +42,8 @@ struct PhotonGridUniform {
 @group(1) @binding(2) var<storage, read> coefficients: array<vec4<f32>>;
 // The V-grid's boundary cells, a bit each (bit i % 32 of word i / 32).
 @group(1) @binding(3) var<storage, read> occupancy: array<u32>;
+// Where the blend starts: the previous field at the same probes (`coefficients` once blended in).
+@group(1) @binding(4) var<storage, read> from_coefficients: array<vec4<f32>>;
 
 const PI: f32 = 3.141592653589793;
 const NO_PROBE: u32 = 0xffffffffu;
@@ -192,7 +196,7 @@ fn gather(in: FullscreenVertexOutput) -> @location(0) vec4<f32> {
         let p = grid.origin + (vec3<f32>(cell) + 0.5) * grid.cell_size;
         var probe_c = array<vec4<f32>, 9>();
         for (var j = 0u; j < 9u; j++) {
-            probe_c[j] = coefficients[probe * 9u + j];
+            probe_c[j] = mix(from_coefficients[probe * 9u + j], coefficients[probe * 9u + j], grid.blend);
         }
         let w = probe_weight(x, n, p) * visibility_weight(probe_c, p, x);
         if w <= 0.0 {

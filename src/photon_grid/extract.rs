@@ -17,13 +17,19 @@ use crate::scene::{SceneSnapshot, SnapshotLight};
 /// The field the frame gathers from. Extracted to the render world.
 #[derive(Resource, Clone, Debug, Default, ExtractResource)]
 pub struct PhotonGridOutput {
-    /// Bumped whenever the field changes.
+    /// Bumped whenever the output changes (a blend step or a gather setting changes only `grid`).
     pub generation: u64,
+    /// Bumped whenever the buffers below change (a new field).
+    pub field_generation: u64,
+    /// The grid and the gather settings; `blend` is the new field's weight while it blends in.
     pub grid: PhotonGridUniform,
     /// Per SH cell: its probe, or `u32::MAX`.
     pub cell_probe: Arc<Vec<u32>>,
     /// Nine `vec4`s per probe: radiance SH (rgb, cd/m² before exposure) and distance SH (a, metres).
     pub coefficients: Arc<Vec<Vec4>>,
+    /// Where the blend starts, at the same probes as `coefficients` (the previous field; the new one at
+    /// probes the previous field lacked). The gather reads `mix(from, coefficients, grid.blend)`.
+    pub from_coefficients: Arc<Vec<Vec4>>,
     /// The V-grid's boundary cells, a bit each ([`VGrid::occupancy_words`]): the gather's visibility.
     pub occupancy: Arc<Vec<u32>>,
 }
@@ -97,6 +103,8 @@ pub struct PhotonGridCore {
     /// the probe rays are kept (`PhotonGridActivity::kept_bytes`); a scene where nothing moves does not
     /// hold them.
     keep_records: bool,
+    /// The last field made (shared with the one shown): the next preparation starts its blend from it.
+    last_field: Option<(GridLayout, Arc<Vec<u32>>, Arc<Vec<Vec4>>)>,
 }
 
 /// What every photon path depends on besides the geometry: a change of any re-traces them all.
@@ -163,23 +171,36 @@ type FieldKey = JobKey<PhotonGridSettings>;
 /// What a background preparation hands back (its grids go back to the state).
 struct Prepared {
     /// `None` for an empty scene.
-    field: Option<(GridLayout, ShField)>,
+    field: Option<NewField>,
     occupancy: Arc<Vec<u32>>,
     activity: PhotonGridActivity,
 }
 
-/// The field drawn, blending from the previous one.
+/// A new field, ready to draw: its probes' coefficients flattened, and where its blend starts when the
+/// field before it had the same grid (made in the background, so that the main thread only swaps
+/// `Arc`s).
+struct NewField {
+    layout: GridLayout,
+    cell_probe: Arc<Vec<u32>>,
+    to: Arc<Vec<Vec4>>,
+    /// The previous field at this field's probes (this field's values where it had none).
+    from: Option<Arc<Vec<Vec4>>>,
+}
+
+/// The field drawn, blending from the previous one (on the GPU: the gather mixes the two buffers).
 struct ShownField {
     layout: GridLayout,
     cell_probe: Arc<Vec<u32>>,
     occupancy: Arc<Vec<u32>>,
     /// Nine coefficients per probe: where the blend starts (the previous field at the same cells) and
     /// where it ends.
-    from: Vec<Vec4>,
-    to: Vec<Vec4>,
+    from: Arc<Vec<Vec4>>,
+    to: Arc<Vec<Vec4>>,
     blend: Blend,
     /// The gather settings last drawn with.
     drawn: Option<PhotonGridSettings>,
+    /// Whether the buffers changed since the output was last written.
+    new_buffers: bool,
 }
 
 /// Distances of the SH distance field are clamped to this many SH cells: the gather's visibility only
@@ -228,10 +249,10 @@ pub(super) fn update_photon_grid(
             &[(&DIAGNOSTIC_VOXELIZE, t.voxelize_ms), (&DIAGNOSTIC_TRACE, t.trace_ms), (&DIAGNOSTIC_RGRID, t.rgrid_ms), (&DIAGNOSTIC_FIELD, t.field_ms)],
         );
         *activity = PhotonGridActivity { updates: activity.updates + 1, frames_since_start: activity.frames_since_start, ..done };
-        state.shown = field.map(|(layout, field)| ShownField::after(state.shown.take(), layout, field, occupancy));
+        state.shown = field.map(|field| ShownField::after(state.shown.take(), field, occupancy));
         if state.shown.is_none() {
-            let generation = output.generation + 1;
-            *output = PhotonGridOutput { generation, ..default() };
+            let (generation, field_generation) = (output.generation + 1, output.field_generation + 1);
+            *output = PhotonGridOutput { generation, field_generation, ..default() };
         }
     }
 
@@ -247,13 +268,14 @@ pub(super) fn update_photon_grid(
     // 3. Write the output when the field, the blend or a gather setting changed.
     if let Some(shown) = &mut state.shown {
         let weight = shown.blend.advance();
-        if weight.is_some() || shown.drawn.as_ref() != Some(&settings) {
+        if weight.is_some() || shown.drawn.as_ref() != Some(&settings) || shown.new_buffers {
             shown.drawn = Some(settings.clone());
             let layout = shown.layout;
-            let coefficients = shown.current();
             let generation = output.generation + 1;
+            let field_generation = output.field_generation + u64::from(std::mem::take(&mut shown.new_buffers));
             *output = PhotonGridOutput {
                 generation,
+                field_generation,
                 grid: PhotonGridUniform {
                     origin: layout.origin,
                     cell_size: layout.cell,
@@ -262,10 +284,12 @@ pub(super) fn update_photon_grid(
                     intensity: settings.intensity,
                     gather_samples: settings.gather_samples,
                     obscurance_distance: settings.obscurance_distance,
-                    probes: (coefficients.len() / 9) as u32,
+                    probes: (shown.to.len() / 9) as u32,
+                    blend: shown.blend.weight(),
                 },
                 cell_probe: shown.cell_probe.clone(),
-                coefficients: Arc::new(coefficients),
+                coefficients: shown.to.clone(),
+                from_coefficients: shown.from.clone(),
                 occupancy: shown.occupancy.clone(),
             };
         }
@@ -277,31 +301,34 @@ pub(super) fn update_photon_grid(
 }
 
 impl ShownField {
-    /// The new field, blending from `previous` at the cells both have a probe in (same grid only).
-    fn after(previous: Option<Self>, layout: GridLayout, field: ShField, occupancy: Arc<Vec<u32>>) -> Self {
-        let to: Vec<Vec4> = field.coefficients.iter().flatten().copied().collect();
-        let previous = previous.filter(|p| p.layout == layout && p.cell_probe.len() == field.cell_probe.len());
-        let (from, blend) = match previous {
-            Some(previous) => {
-                let old = previous.current();
-                let mut from = to.clone();
-                for (&new, &was) in field.cell_probe.iter().zip(previous.cell_probe.iter()) {
-                    if new != u32::MAX && was != u32::MAX {
-                        let (new, was) = (new as usize * 9, was as usize * 9);
-                        from[new..new + 9].copy_from_slice(&old[was..was + 9]);
-                    }
-                }
-                (from, Blend::start())
+    /// The new field, blending from `previous` (same grid only). The start of the blend was made in the
+    /// background from the last field; only when `previous` was still blending in (a preparation
+    /// shorter than the blend) is it made here, from what `previous` shows now.
+    fn after(previous: Option<Self>, field: NewField, occupancy: Arc<Vec<u32>>) -> Self {
+        let NewField { layout, cell_probe, to, from } = field;
+        let previous = previous.filter(|p| p.layout == layout && p.cell_probe.len() == cell_probe.len());
+        let (from, blend) = match (previous, from) {
+            (Some(previous), Some(from)) if previous.blend.is_done() => (from, Blend::start()),
+            (Some(previous), _) => {
+                let old = previous.blend.mix(&previous.from, &previous.to, Vec4::lerp);
+                (Arc::new(blend_start(&cell_probe, &to, &previous.cell_probe, &old)), Blend::start())
             }
-            None => (to.clone(), Blend::DONE),
+            (None, _) => (to.clone(), Blend::DONE),
         };
-        Self { layout, cell_probe: Arc::new(field.cell_probe), occupancy, from, to, blend, drawn: None }
+        Self { layout, cell_probe, occupancy, from, to, blend, drawn: None, new_buffers: true }
     }
+}
 
-    /// The coefficients on screen now.
-    fn current(&self) -> Vec<Vec4> {
-        self.blend.mix(&self.from, &self.to, Vec4::lerp)
+/// `to`'s probes with the values `old` had at the same cells (`to`'s own where `old` had no probe).
+fn blend_start(cell_probe: &[u32], to: &[Vec4], old_cell_probe: &[u32], old: &[Vec4]) -> Vec<Vec4> {
+    let mut from = to.to_vec();
+    for (&new, &was) in cell_probe.iter().zip(old_cell_probe) {
+        if new != u32::MAX && was != u32::MAX {
+            let (new, was) = (new as usize * 9, was as usize * 9);
+            from[new..new + 9].copy_from_slice(&old[was..was + 9]);
+        }
     }
+    from
 }
 
 /// One preparation, on a background task: the V-grid (only when geometry or the resolution changed
@@ -399,5 +426,15 @@ fn prepare(core: &mut PhotonGridCore, snapshot: &SceneSnapshot, key: &FieldKey) 
         times,
         ..default()
     };
-    Prepared { field: Some((layout, field)), occupancy: Arc::new(core.vgrid.occupancy_words()), activity }
+    // The field flattened, and where its blend starts: the last field at the same cells.
+    let cell_probe = Arc::new(field.cell_probe);
+    let to: Arc<Vec<Vec4>> = Arc::new(field.coefficients.iter().flatten().copied().collect());
+    let from = core
+        .last_field
+        .as_ref()
+        .filter(|(l, old_cells, _)| *l == layout && old_cells.len() == cell_probe.len())
+        .map(|(_, old_cells, old)| Arc::new(blend_start(&cell_probe, &to, old_cells, old)));
+    core.last_field = Some((layout, cell_probe.clone(), to.clone()));
+    let field = NewField { layout, cell_probe, to, from };
+    Prepared { field: Some(field), occupancy: Arc::new(core.vgrid.occupancy_words()), activity }
 }

@@ -27,6 +27,9 @@ pub struct PhotonGridUniform {
     /// Obscurance distance, metres; 0: off.
     pub obscurance_distance: f32,
     pub probes: u32,
+    /// The new field's weight while it blends in over the previous one (1 once it has): the gather
+    /// reads `mix(from_coefficients, coefficients, blend)`.
+    pub blend: f32,
 }
 
 /// The method's shaders.
@@ -67,6 +70,7 @@ pub(super) fn init_photon_grid_pipelines(world: &mut World) {
                 storage_buffer_read_only::<u32>(false),
                 storage_buffer_read_only::<Vec4>(false),
                 storage_buffer_read_only::<u32>(false),
+                storage_buffer_read_only::<Vec4>(false),
             ),
         ),
     );
@@ -77,13 +81,22 @@ pub(super) fn init_photon_grid_pipelines(world: &mut World) {
     });
 }
 
+/// The field's buffers: cell → probe, coefficients, V-grid occupancy, the blend's start.
+pub(super) struct FieldBuffers {
+    pub cell_probe: Buffer,
+    pub coefficients: Buffer,
+    pub occupancy: Buffer,
+    pub from_coefficients: Buffer,
+}
+
 /// The field on the GPU and the pipelines of this frame's views.
 #[derive(Resource, Default)]
 pub struct PhotonGridGpu {
-    /// The [`PhotonGridOutput::generation`] uploaded.
-    generation: Option<u64>,
-    /// Uniform, cell → probe, coefficients, V-grid occupancy; `None` while the field is empty.
-    pub(super) field: Option<(UniformBuffer<PhotonGridUniform>, Buffer, Buffer, Buffer)>,
+    /// The [`PhotonGridOutput::generation`] and [`PhotonGridOutput::field_generation`] uploaded.
+    generation: Option<(u64, u64)>,
+    /// The uniform (rewritten for each blend step) and the buffers (uploaded once per field); `None`
+    /// while the field is empty.
+    pub(super) field: Option<(UniformBuffer<PhotonGridUniform>, FieldBuffers)>,
     pub(super) pipelines: PipelinesByResolution,
 }
 
@@ -104,22 +117,35 @@ pub(super) fn prepare_photon_grid(
         gpu.generation = None;
         return;
     }
-    if gpu.generation == Some(output.generation) {
+    let uploaded = gpu.generation.replace((output.generation, output.field_generation));
+    if uploaded == Some((output.generation, output.field_generation)) {
         return;
     }
-    gpu.generation = Some(output.generation);
-    gpu.field = (!output.coefficients.is_empty()).then(|| {
-        let mut uniform = UniformBuffer::from(output.grid);
-        uniform.set_label(Some("diffuse_gi_photon_grid_uniform"));
+    if output.coefficients.is_empty() {
+        gpu.field = None;
+        return;
+    }
+    // A blend step or a gather setting: the uniform only.
+    if let Some((uniform, _)) = gpu.field.as_mut().filter(|_| uploaded.is_some_and(|(_, f)| f == output.field_generation)) {
+        *uniform.get_mut() = output.grid;
         uniform.write_buffer(&device, &queue);
-        let buffer = |label, contents: &[u8]| {
-            device.create_buffer_with_data(&BufferInitDescriptor { label: Some(label), contents, usage: BufferUsages::STORAGE })
-        };
-        (
-            uniform,
-            buffer("diffuse_gi_photon_grid_cell_probe", bytemuck::cast_slice(&output.cell_probe)),
-            buffer("diffuse_gi_photon_grid_coefficients", bytemuck::cast_slice(&output.coefficients)),
-            buffer("diffuse_gi_photon_grid_occupancy", bytemuck::cast_slice(&output.occupancy)),
-        )
-    });
+        return;
+    }
+    let mut uniform = UniformBuffer::from(output.grid);
+    uniform.set_label(Some("diffuse_gi_photon_grid_uniform"));
+    uniform.write_buffer(&device, &queue);
+    let buffer = |label, contents: &[u8]| {
+        device.create_buffer_with_data(&BufferInitDescriptor { label: Some(label), contents, usage: BufferUsages::STORAGE })
+    };
+    // The blend's start has the coefficients' layout; a field shown whole reads its own values there.
+    let from: &[Vec4] = if output.from_coefficients.len() == output.coefficients.len() { &output.from_coefficients } else { &output.coefficients };
+    gpu.field = Some((
+        uniform,
+        FieldBuffers {
+            cell_probe: buffer("diffuse_gi_photon_grid_cell_probe", bytemuck::cast_slice(&output.cell_probe)),
+            coefficients: buffer("diffuse_gi_photon_grid_coefficients", bytemuck::cast_slice(&output.coefficients)),
+            occupancy: buffer("diffuse_gi_photon_grid_occupancy", bytemuck::cast_slice(&output.occupancy)),
+            from_coefficients: buffer("diffuse_gi_photon_grid_from_coefficients", bytemuck::cast_slice(from)),
+        },
+    ));
 }

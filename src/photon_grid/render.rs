@@ -21,7 +21,7 @@ fn gather_photon_grid(
     if view.gi.0.method != GiMethod::PhotonGrid {
         return;
     }
-    let (Some((uniform, cell_probe, coefficients, occupancy)), Some(pipeline_id)) =
+    let (Some((uniform, buffers)), Some(pipeline_id)) =
         (&gpu.field, gpu.pipelines.get(view.gi.0.half_resolution))
     else {
         return;
@@ -34,9 +34,10 @@ fn gather_photon_grid(
         &params.pipeline_cache.get_bind_group_layout(&pipelines.field_layout),
         &BindGroupEntries::sequential((
             grid,
-            cell_probe.as_entire_binding(),
-            coefficients.as_entire_binding(),
-            occupancy.as_entire_binding(),
+            buffers.cell_probe.as_entire_binding(),
+            buffers.coefficients.as_entire_binding(),
+            buffers.occupancy.as_entire_binding(),
+            buffers.from_coefficients.as_entire_binding(),
         )),
     );
     pipelines.pass.draw(
