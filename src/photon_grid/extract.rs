@@ -93,9 +93,8 @@ pub struct PhotonGridCore {
     trace_key: Option<TraceKey>,
     /// Where the probe rays of the last field met the V-grid.
     rays: ProbeRays,
-    /// The instances the paths and rays were made in, by key (the snapshot's order): version, world
-    /// bounds and whether the material emits.
-    instances: Vec<(u64, u64, (Vec3, Vec3), bool)>,
+    /// The instances the paths and rays were made in, by key (the snapshot's order).
+    instances: Vec<InstanceRecord>,
     /// The snapshot's layout generation then: instances added or removed, or the whole snapshot
     /// touched, redo every path and ray.
     layout_generation: u64,
@@ -118,8 +117,11 @@ struct TraceKey {
     max_reflections: u32,
 }
 
+/// An instance as a preparation saw it: key, version, world bounds and whether its material emits.
+type InstanceRecord = (u64, u64, (Vec3, Vec3), bool);
+
 /// The instances of `snapshot` as [`PhotonGridCore::instances`] keeps them.
-fn instance_table(snapshot: &SceneSnapshot, exposure: f32) -> Vec<(u64, u64, (Vec3, Vec3), bool)> {
+fn instance_table(snapshot: &SceneSnapshot, exposure: f32) -> Vec<InstanceRecord> {
     snapshot
         .instances()
         .iter()
@@ -132,7 +134,7 @@ fn instance_table(snapshot: &SceneSnapshot, exposure: f32) -> Vec<(u64, u64, (Ve
 
 /// The world boxes that changed between two instance tables (the old and new bounds of every instance
 /// moved, re-materialed, added or removed), and whether one of those instances emits light.
-fn changed_boxes(old: &[(u64, u64, (Vec3, Vec3), bool)], new: &[(u64, u64, (Vec3, Vec3), bool)]) -> (Vec<(Vec3, Vec3)>, bool) {
+fn changed_boxes(old: &[InstanceRecord], new: &[InstanceRecord]) -> (Vec<(Vec3, Vec3)>, bool) {
     let (mut boxes, mut emitters) = (Vec::new(), false);
     let (mut a, mut b) = (old.iter().peekable(), new.iter().peekable());
     loop {
@@ -375,9 +377,7 @@ fn prepare(core: &mut PhotonGridCore, snapshot: &SceneSnapshot, key: &FieldKey) 
     let environment = snapshot.environment.as_deref();
     let paths_traced = match &changed {
         Some((boxes, false)) if core.trace_key.as_ref() == Some(&trace_key) => {
-            // One SH cell and a V-cell around a change: what a stored photon's cell and faces read.
-            let margin = layout.cell + layout.v_cell();
-            core.paths.retrace(snapshot, &gi_lights, environment, &core.vgrid, &params, boxes, margin)
+            core.paths.retrace(snapshot, &gi_lights, environment, &core.vgrid, &params, boxes)
         }
         _ => {
             core.paths = PhotonPaths::trace(snapshot, &gi_lights, environment, &core.vgrid, &params);

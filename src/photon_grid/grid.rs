@@ -81,6 +81,25 @@ impl GridLayout {
     pub fn centre(&self, c: UVec3) -> Vec3 {
         self.origin + (c.as_vec3() + 0.5) * self.cell
     }
+
+    /// Linear index of V-cell `v`.
+    pub fn v_index(&self, v: UVec3) -> u32 {
+        let d = self.v_dims();
+        (v.z * d.y + v.y) * d.x + v.x
+    }
+
+    /// The V-cell of a linear index.
+    pub fn v_coords(&self, i: u32) -> UVec3 {
+        let d = self.v_dims();
+        UVec3::new(i % d.x, (i / d.x) % d.y, i / (d.x * d.y))
+    }
+
+    /// How far around a changed box what the photons and probe rays read can have changed: a stored
+    /// photon's SH cell and faces, the SH cells a probe ray skips or walks (one SH cell), and the
+    /// V-cells a triangle marks beyond its own box (one V-cell).
+    pub fn change_margin(&self) -> f32 {
+        self.cell + self.v_cell()
+    }
 }
 
 /// How far (in V-cells) beyond a cell a triangle still marks it.
@@ -132,7 +151,7 @@ impl VGrid {
                                 // the cells on both sides whatever the rounding: photons are stored on
                                 // the side they leave from, and a ray must stop in that cell.
                                 if triangle_box_overlap(c.as_vec3() + 0.5, Vec3::splat(0.5 + BOUNDARY_MARGIN), local) {
-                                    hits.push((z * v_dims.y + y) * v_dims.x + x);
+                                    hits.push(layout.v_index(c));
                                 }
                             }
                         }
@@ -158,8 +177,7 @@ impl VGrid {
         let mut sh_boundary = vec![false; layout.cell_count()];
         for &(i, _) in &cells {
             bits[i as usize / 64] |= 1 << (i % 64);
-            let v = UVec3::new(i % v_dims.x, (i / v_dims.x) % v_dims.y, i / (v_dims.x * v_dims.y));
-            sh_boundary[layout.index(v / V_PER_SH)] = true;
+            sh_boundary[layout.index(layout.v_coords(i) / V_PER_SH)] = true;
         }
         Self { layout: Some(layout), bits, cells, sh_boundary }
     }
@@ -176,14 +194,13 @@ impl VGrid {
         if v.cmplt(IVec3::ZERO).any() || v.cmpge(d).any() {
             return false;
         }
-        let i = ((v.z * d.y + v.y) * d.x + v.x) as usize;
+        let i = layout.v_index(v.as_uvec3()) as usize;
         self.bits[i / 64] & (1 << (i % 64)) != 0
     }
 
     /// The data of boundary cell `v`.
     pub fn cell(&self, v: UVec3) -> Option<VCell> {
-        let d = self.layout?.v_dims();
-        let i = (v.z * d.y + v.y) * d.x + v.x;
+        let i = self.layout?.v_index(v);
         self.cells.binary_search_by_key(&i, |e| e.0).ok().map(|k| self.cells[k].1)
     }
 
@@ -402,7 +419,6 @@ struct TracedPath {
     stats: PhotonStats,
 }
 
-
 /// The photon sources of a scene and their flux, with each photon's source (§3.2's emission).
 struct Sources<'a> {
     sources: Vec<(Source<'a>, Vec3)>,
@@ -477,7 +493,6 @@ impl<'a> Sources<'a> {
         self.cumulative.partition_point(|&c| c < u).min(self.sources.len() - 1)
     }
 
-    /// Photon `k`'s path.
     /// Photon `k`'s path, into `path` (cleared first: one buffer serves many paths).
     fn trace(&self, snapshot: &SceneSnapshot, vgrid: &VGrid, params: &TraceParams, k: u32, path: &mut TracedPath) {
         path.photons.clear();
@@ -558,12 +573,17 @@ impl PhotonPaths {
         self.path_stats.is_empty()
     }
 
-    /// Appends one path.
-    fn push(&mut self, path: &TracedPath) {
+    /// The offsets' leading zeros, before the first path is appended.
+    fn begin(&mut self) {
         if self.photon_offsets.is_empty() {
             self.photon_offsets.push(0);
             self.point_offsets.push(0);
         }
+    }
+
+    /// Appends one path.
+    fn push(&mut self, path: &TracedPath) {
+        self.begin();
         self.photons.extend_from_slice(&path.photons);
         self.points.extend_from_slice(&path.points);
         self.photon_offsets.push(self.photons.len() as u32);
@@ -579,11 +599,10 @@ impl PhotonPaths {
 
     /// Brings the paths up to date with a scene in which only what lies in `changed` (world boxes:
     /// the old and new bounds of what moved) differs from the scene they were traced in, same sources and
-    /// same settings: the paths whose rays ran through a box grown by `margin` (what a photon's storage
-    /// reads around it: one SH cell) are traced again, the others kept. The result is the full trace's.
+    /// same settings: the paths whose rays ran through a box grown by [`GridLayout::change_margin`] (what
+    /// a photon's storage reads around it) are traced again, the others kept. The result is the full trace's.
     /// Without the paths' records ([`forget_paths`](Self::forget_paths)) every path is traced, unless
     /// nothing changed. Returns how many paths were traced again.
-    #[expect(clippy::too_many_arguments, reason = "the trace's inputs and what changed")]
     pub fn retrace(
         &mut self,
         snapshot: &SceneSnapshot,
@@ -592,9 +611,8 @@ impl PhotonPaths {
         vgrid: &VGrid,
         params: &TraceParams,
         changed: &[(Vec3, Vec3)],
-        margin: f32,
     ) -> usize {
-        let Some(sources) = vgrid.layout.and(Sources::new(snapshot, lights, environment, params)) else {
+        let (Some(layout), Some(sources)) = (vgrid.layout, Sources::new(snapshot, lights, environment, params)) else {
             *self = Self::default();
             return 0;
         };
@@ -605,6 +623,7 @@ impl PhotonPaths {
             *self = Self::trace(snapshot, lights, environment, vgrid, params);
             return params.photons as usize;
         }
+        let margin = layout.change_margin();
         let boxes: Vec<(Vec3, Vec3)> = changed.iter().map(|&(lo, hi)| (lo - margin, hi + margin)).collect();
         let redo: Vec<u32> = (0..params.photons).into_par_iter().filter(|&k| self.touches(k as usize, &boxes)).collect();
         if redo.is_empty() {
@@ -631,10 +650,7 @@ impl PhotonPaths {
         if range.is_empty() {
             return;
         }
-        if self.photon_offsets.is_empty() {
-            self.photon_offsets.push(0);
-            self.point_offsets.push(0);
-        }
+        self.begin();
         let (p0, q0) = (old.photon_offsets[range.start], old.point_offsets[range.start]);
         let (p1, q1) = (old.photon_offsets[range.end], old.point_offsets[range.end]);
         let (dp, dq) = (self.photons.len() as i64 - p0 as i64, self.points.len() as i64 - q0 as i64);
@@ -1051,10 +1067,7 @@ impl ProbeRays {
 
 /// The V-cell (linear index) a probe ray from `c` along `d` meets first, or [`RAY_MISSED`].
 fn probe_hit(vgrid: &VGrid, layout: &GridLayout, c: Vec3, d: Vec3) -> u32 {
-    vgrid.march(c, d).map_or(RAY_MISSED, |(v, _)| {
-        let dims = layout.v_dims();
-        (v.z * dims.y + v.y) * dims.x + v.x
-    })
+    vgrid.march(c, d).map_or(RAY_MISSED, |(v, _)| layout.v_index(v))
 }
 
 /// The distance along the ray from `c` in the unit direction `d` at which it enters the V-cell `v`
@@ -1079,8 +1092,7 @@ fn probe_ray(vgrid: &VGrid, rgrid: &RGrid, env: Option<&Environment>, c: Vec3, d
     if hit == RAY_MISSED {
         return (env.map_or(Vec3::ZERO, |e| e.radiance(d)), params.max_distance, false);
     }
-    let dims = layout.v_dims();
-    let v = UVec3::new(hit % dims.x, (hit / dims.x) % dims.y, hit / (dims.x * dims.y));
+    let v = layout.v_coords(hit);
     let t = entry_distance(&layout, v, c, d);
     let data = vgrid.cell(v).unwrap_or_default();
     // The V-cell's mean normal turned towards the ray (surfaces are two-sided); where its normals cancel
@@ -1154,7 +1166,7 @@ impl ShField {
         let bases: Vec<[f32; 9]> = directions.iter().map(|&d| basis(d)).collect();
         let weight = 4.0 * PI / n as f32;
         // The kept rays, when they were made on this grid with these directions.
-        let margin = layout.cell + layout.v_cell();
+        let margin = layout.change_margin();
         let boxes: Option<Vec<(Vec3, Vec3)>> = changed
             .filter(|_| rays.layout == Some(layout) && rays.directions == n)
             .map(|c| c.iter().map(|&(lo, hi)| (lo - margin, hi + margin)).collect());
@@ -1180,9 +1192,7 @@ impl ShField {
                             let end = if h == RAY_MISSED {
                                 c + d * reach
                             } else {
-                                let v_dims = layout.v_dims();
-                                let v = UVec3::new(h % v_dims.x, (h / v_dims.x) % v_dims.y, h / (v_dims.x * v_dims.y));
-                                c + d * (entry_distance(&layout, v, c, d) + 2.0 * v_cell)
+                                c + d * (entry_distance(&layout, layout.v_coords(h), c, d) + 2.0 * v_cell)
                             };
                             if boxes.iter().any(|&b| segment_meets_box(c, end, b)) {
                                 marched += 1;
@@ -1394,7 +1404,7 @@ mod tests {
         assert_eq!(snapshot.bounds().unwrap(), (lo, hi));
         let after = snapshot.instance(100).unwrap().bounds;
         let vgrid = VGrid::build(&snapshot, layout);
-        let retraced = paths.retrace(&snapshot, &lights, None, &vgrid, &params, &[before, after], layout.cell + layout.v_cell());
+        let retraced = paths.retrace(&snapshot, &lights, None, &vgrid, &params, &[before, after]);
         let full = PhotonPaths::trace(&snapshot, &lights, None, &vgrid, &params);
         assert!(retraced > 0 && retraced < params.photons as usize / 2, "{retraced} of {} paths traced again", params.photons);
         assert_eq!(paths.photons, full.photons, "the photons of the paths kept and traced again are the full trace's");
@@ -1733,5 +1743,3 @@ mod against_the_tracer {
         assert!((0.85..1.1).contains(&(ours / theirs)), "probe radiance {:.3} of the truth's", ours / theirs);
     }
 }
-
-
