@@ -94,6 +94,15 @@ fn a_moving_mesh_moves_its_elements_instead_of_rebuilding_them_and_the_light_fol
     // The first solve and at least one in the background while the box moved (each frame's move is
     // coalesced into the next solve, not queued).
     check(test, info["solves"].as_u64() >= Some(2), &moving.image, None, format!("{} solves", info["solves"]));
+    // The first solve with the box moving derived the links it keeps among the still meshes from the still
+    // scene's (relinking the bins that saw the box), and no solve made them from scratch.
+    check(
+        test,
+        info["kept_links_derived"] == 1 && info["kept_links_made"] == 0,
+        &moving.image,
+        None,
+        format!("kept links derived {} times and made {} times (1 and 0 expected)", info["kept_links_derived"], info["kept_links_made"]),
+    );
     let change = metrics::compare(&moving.image, &still.image).expect("same size").block_relative_rmse;
     check(test, change > 0.01, &moving.image, Some(&still.image), format!("the light did not follow the box: {change:.4}"));
 }

@@ -646,9 +646,10 @@ fn drive(
                 map.insert(
                     "radiosity".into(),
                     json!({ "elements": radiosity.elements, "nodes": radiosity.nodes, "links": t.links,
-                            "leaves_pushed": t.leaves_pushed,
+                            "leaves_pushed": t.leaves_pushed, "kept_bins_relinked": t.kept_bins_relinked,
                             "over_budget_mib": radiosity.over_budget_mib, "last_work": format!("{:?}", radiosity.last),
-                            "solves": radiosity.solves, "bounces_run": t.bounces_run, "busy": radiosity.busy,
+                            "solves": radiosity.solves, "kept_links_derived": radiosity.kept_links_derived,
+                            "kept_links_made": radiosity.kept_links_made, "bounces_run": t.bounces_run, "busy": radiosity.busy,
                             "update_elements_ms": t.update_elements_ms, "create_links_ms": t.create_links_ms,
                             "refine_push_ms": t.refine_push_ms, "illumination_ms": t.illumination_ms }),
                 );

@@ -37,6 +37,11 @@ pub struct RadiosityActivity {
     pub times: StageTimes,
     /// Solves finished so far (background tasks that recomputed anything).
     pub solves: u64,
+    /// Solves that derived the links kept among the still meshes from the links at hand (a mesh started
+    /// moving: only the bins that saw it relinked), and solves that had to make them from scratch (a
+    /// full linking's cost).
+    pub kept_links_derived: u64,
+    pub kept_links_made: u64,
     /// What the last finished solve redid.
     pub last: RadiosityWork,
     /// Whether the light shown is not yet the solution of the scene as it is now: a solve is running
@@ -230,6 +235,8 @@ pub(super) fn update_radiosity(
             times,
             over_budget_mib,
             solves: activity.solves + (work != RadiosityWork::Reused) as u64,
+            kept_links_derived: activity.kept_links_derived + times.kept_bins_relinked.is_some() as u64,
+            kept_links_made: activity.kept_links_made + times.kept_links_made as u64,
             last: work,
             ..activity.clone()
         };
@@ -256,6 +263,18 @@ pub(super) fn update_radiosity(
         let snapshot = snapshot.clone();
         state.job.start(&key, move |core, key| {
             let (work, times, gathered) = solve(core, &snapshot, key);
+            debug!(
+                "Radiosity solve ({work:?}): elements {:.1} ms, links {:.1} ms ({} bins; kept links derived by relinking {:?} bins), \
+                 push-down {:.1} ms ({} leaves), light {:.1} ms; full links kept {:.1} MiB",
+                times.update_elements_ms,
+                times.create_links_ms,
+                times.links,
+                times.kept_bins_relinked,
+                times.refine_push_ms,
+                times.leaves_pushed,
+                times.illumination_ms,
+                core.solver.full_links_bytes() as f64 / f64::from(1 << 20)
+            );
             let elements = &core.solver.elements;
             Solution {
                 work,
@@ -403,9 +422,7 @@ fn solve(core: &mut RadiosityCore, snapshot: &SceneSnapshot, key: &SolveKey) -> 
             );
             core.warned_budget = Some((needed, budget));
         }
-        core.solver.links = Vec::new();
-        core.solver.leaf_links = Vec::new();
-        core.solver.static_links = None;
+        core.solver.forget_links();
         (core.links_key, core.lighting_key) = (None, None);
         core.over_budget_mib = Some(needed >> 20);
         return (RadiosityWork::OverBudget, times, vec![Vec3::ZERO; core.solver.elements.len()]);
@@ -413,6 +430,8 @@ fn solve(core: &mut RadiosityCore, snapshot: &SceneSnapshot, key: &SolveKey) -> 
     let links_key = Some((snapshot.geometry_generation, settings.bins, settings.subdivision_threshold.to_bits()));
     if core.links_key != links_key {
         let keep = core.solver.link_bytes(settings.bins, true) <= budget;
+        // The links of a still scene kept (their filled bins) for the first move: less than the kept links.
+        core.solver.keep_full_links = keep;
         match (&moved_ranges, work) {
             // Moved instances: keep the links among the rest (§4's update for deforming meshes).
             (Some(ranges), RadiosityWork::Refit) if keep => {
@@ -427,6 +446,8 @@ fn solve(core: &mut RadiosityCore, snapshot: &SceneSnapshot, key: &SolveKey) -> 
         times.refine_push_ms = core.solver.times.refine_push_ms;
         times.links = core.solver.times.links;
         times.leaves_pushed = core.solver.times.leaves_pushed;
+        times.kept_bins_relinked = core.solver.times.kept_bins_relinked;
+        times.kept_links_made = core.solver.times.kept_links_made;
         core.links_key = links_key;
         core.lighting_key = None;
         if work == RadiosityWork::Reused {

@@ -35,6 +35,8 @@ pub struct CubeBins {
     solid_angle: Vec<f32>,
     /// Unit centre direction of every bin.
     centre: Vec<Vec3>,
+    /// Angle between the centre and the farthest corner of the bins of one face, row-major, rad.
+    half_angle: Vec<f32>,
 }
 
 impl CubeBins {
@@ -51,8 +53,17 @@ impl CubeBins {
                 solid_angle.push(corner(x1, y1) - corner(x0, y1) - corner(x1, y0) + corner(x0, y0));
             }
         }
-        let mut bins = Self { n, solid_angle, centre: Vec::new() };
+        let mut bins = Self { n, solid_angle, centre: Vec::new(), half_angle: Vec::new() };
         bins.centre = (0..bins.count()).map(|k| bins.direction(k as u32)).collect();
+        bins.half_angle = (0..n * n)
+            .map(|k| {
+                let c = bins.centre[k as usize];
+                [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)]
+                    .iter()
+                    .map(|&(fu, fv)| c.dot(bins.direction_within(k, fu, fv)).clamp(-1.0, 1.0).acos())
+                    .fold(0.0, f32::max)
+            })
+            .collect();
         bins
     }
 
@@ -99,6 +110,12 @@ impl CubeBins {
     /// Unit direction through the centre of a bin.
     pub fn centre(&self, bin: u32) -> Vec3 {
         self.centre[bin as usize]
+    }
+
+    /// Angle between a bin's centre and its farthest corner, rad: every direction of the bin lies
+    /// within it of [`centre`](Self::centre).
+    pub fn half_angle(&self, bin: u32) -> f32 {
+        self.half_angle[(bin % (self.n * self.n)) as usize]
     }
 
     /// The mean of `radiance` over every bin's solid angle, from `samples²` directions per bin weighted
@@ -531,6 +548,14 @@ pub struct StageTimes {
     pub bounces_run: u32,
     /// Links stored before the refinement.
     pub links: usize,
+    /// When the last [`relink`](RadiositySolver::relink) made the kept links (a segment started moving)
+    /// from the links it had ([`FullLinks`] or the kept links of an earlier move): the bins it had to
+    /// link again, those whose link led into a segment now left out. `None` when it kept the links it
+    /// had, or made them anew.
+    pub kept_bins_relinked: Option<usize>,
+    /// Whether the last [`relink`](RadiositySolver::relink) made the kept links from scratch (a full
+    /// linking's cost: no links at hand to derive them from).
+    pub kept_links_made: bool,
     /// Leaves whose links the last refinement pushed down anew (the others' own and ancestors' links
     /// had not changed since the one before).
     pub leaves_pushed: usize,
@@ -561,6 +586,17 @@ pub struct RadiositySolver {
     /// The links among the segments that stand still, kept by [`relink`](Self::relink) while others
     /// move (none until something moves).
     pub static_links: Option<StaticLinks>,
+    /// Whether [`refine_and_push`](Self::refine_and_push) keeps the links of a
+    /// [`create_links`](Self::create_links) as [`FullLinks`] (their filled bins only) instead of freeing
+    /// them, so that the first move derives the kept links from them instead of making them anew.
+    pub keep_full_links: bool,
+    /// The links of the last [`create_links`](Self::create_links), kept by
+    /// [`refine_and_push`](Self::refine_and_push) while nothing moves (with
+    /// [`keep_full_links`](Self::keep_full_links)).
+    full_links: Option<FullLinks>,
+    /// The bins and threshold (bits) of the links in [`links`](Self::links) while they are the ones
+    /// [`create_links`](Self::create_links) made (every segment with every other).
+    links_full: Option<(u32, u32)>,
     /// The bins of [`links`](Self::links) that the last [`relink`](Self::relink) filled from moving
     /// senders (the next one restores them from the kept links).
     touched: Vec<usize>,
@@ -585,6 +621,93 @@ pub struct StaticLinks {
     links: Vec<Link>,
     /// Bins of `links` that hold a link.
     count: usize,
+}
+
+/// The links of a [`create_links`](RadiositySolver::create_links), every segment with every other, with
+/// only their filled bins (15 % of them on `dynamic` at 16 bins: 6.6 million links of 29 000 nodes, 63
+/// MiB instead of the 340 MiB of the full array). Kept while nothing moves so that when a segment starts
+/// moving the links among the others follow from them: a bin keeps its link unless it leads into the
+/// moving segment, and only such bins are linked again ([`RadiositySolver::relink`]).
+#[derive(Clone, Debug, Default)]
+pub struct FullLinks {
+    bins: u32,
+    threshold: u32,
+    /// Node `k`'s filled bins are `slots[offsets[k]..offsets[k + 1]]`, their links the same range of
+    /// `links`.
+    offsets: Vec<u32>,
+    slots: Vec<u16>,
+    links: Vec<Link>,
+}
+
+impl FullLinks {
+    fn from_dense(dense: &[Link], per_node: usize, (bins, threshold): (u32, u32)) -> Self {
+        let mut full = Self { bins, threshold, offsets: Vec::with_capacity(dense.len() / per_node.max(1) + 1), ..Default::default() };
+        full.offsets.push(0);
+        for node in dense.chunks(per_node.max(1)) {
+            for (slot, link) in node.iter().enumerate().filter(|(_, l)| l.node != NO_LINK) {
+                full.slots.push(slot as u16);
+                full.links.push(*link);
+            }
+            full.offsets.push(full.links.len() as u32);
+        }
+        full.slots.shrink_to_fit();
+        full.links.shrink_to_fit();
+        full
+    }
+
+    /// Node `k`'s filled bins and their links.
+    fn node(&self, k: usize) -> impl Iterator<Item = (usize, Link)> + '_ {
+        let range = self.offsets[k] as usize..self.offsets[k + 1] as usize;
+        self.slots[range.clone()].iter().map(|&s| s as usize).zip(self.links[range].iter().copied())
+    }
+
+    /// Bytes held.
+    pub fn bytes(&self) -> u64 {
+        (self.offsets.capacity() * 4 + self.slots.capacity() * 2 + self.links.capacity() * std::mem::size_of::<Link>()) as u64
+    }
+}
+
+/// Links a kept-links array is derived from ([`RadiositySolver::relink`]).
+#[derive(Clone, Copy)]
+enum KeptSource<'a> {
+    /// One `6n²`-bin array per node.
+    Dense(&'a [Link]),
+    Sparse(&'a FullLinks),
+}
+
+/// A cone of directions: every direction within `angle` of `axis` (`angle < 0`: none).
+#[derive(Clone, Copy, Debug)]
+struct Cone {
+    axis: Vec3,
+    angle: f32,
+}
+
+impl Cone {
+    const EMPTY: Cone = Cone { axis: Vec3::Z, angle: -1.0 };
+
+    /// A cone holding the cones `(axis, angle)` (unit axes): around their mean axis.
+    fn around(parts: impl Iterator<Item = (Vec3, f32)> + Clone) -> Cone {
+        let sum: Vec3 = parts.clone().map(|(a, _)| a).sum();
+        if parts.clone().next().is_none() {
+            return Cone::EMPTY;
+        }
+        if sum.length_squared() < 1e-6 {
+            return Cone { axis: Vec3::Z, angle: PI };
+        }
+        let axis = sum.normalize();
+        let angle = parts.map(|(a, h)| a.dot(axis).clamp(-1.0, 1.0).acos() + h).fold(0.0, f32::max);
+        // A little slack for the rounding of the bin lookup at bin borders.
+        Cone { axis, angle: (angle + 1e-3).min(PI) }
+    }
+}
+
+/// What a linking restricted to some bins ([`RadiositySolver::relink`]'s derivation of kept links) skips
+/// by: per node, the cone of the bins it and its descendants must fill ([`Cone`]), and the radius around
+/// its position that holds every point its descendants link from or are sampled at.
+#[derive(Clone, Copy)]
+struct Restrict<'a> {
+    cones: &'a [Cone],
+    extent: &'a [f32],
 }
 
 impl RadiositySolver {
@@ -618,14 +741,16 @@ impl RadiositySolver {
     /// opposite bin of the other. Forgets the [kept links](Self::relink) of an earlier move.
     pub fn create_links(&mut self, params: &SolveParams) {
         let start = std::time::Instant::now();
-        self.static_links = None;
+        (self.static_links, self.full_links) = (None, None);
         self.use_bins(params);
         let mut links = std::mem::take(&mut self.links);
         links.clear();
         links.resize(self.hierarchy.nodes.len() * self.node_bins(), EMPTY);
         let threshold = params.subdivision_threshold.max(1e-3);
-        self.times.links = self.link_segments(&mut links, threshold, false, |_| true, |_| true).0;
+        self.times.links = self.link_segments(&mut links, threshold, None, false, |_| true, |_| true).0;
+        (self.times.kept_bins_relinked, self.times.kept_links_made) = (None, false);
         self.links = links;
+        self.links_full = Some((params.bins.max(1), threshold.to_bits()));
         (self.touched, self.changed_nodes) = (Vec::new(), None);
         self.times.create_links_ms = start.elapsed().as_secs_f32() * 1e3;
     }
@@ -637,19 +762,24 @@ impl RadiositySolver {
     /// segments with everything and the still segments with the moving ones, O(moving × scene) instead
     /// of O(scene²), and merges those links into the kept ones: the result is the one
     /// [`create_links`](Self::create_links) gives (each bin keeps the shortest link, whatever the order
-    /// the links are found in). A segment that starts moving, or new bins or threshold, make the kept
-    /// links anew (the cost of `create_links` once).
+    /// the links are found in). A segment that starts moving makes the kept links from the links at
+    /// hand, the full links of a still scene ([`FullLinks`]) or the kept links of an earlier move
+    /// ([`derive_kept`](Self::derive_kept)): only the bins whose link led into the segment are linked
+    /// again. Without such links (new bins or threshold, or a segment that moved before no longer left
+    /// out) the kept links are made anew, the cost of `create_links` once.
     pub fn relink(&mut self, params: &SolveParams, moving: &[bool]) {
         let start = std::time::Instant::now();
         let roots = self.hierarchy.roots.len();
         let threshold = params.subdivision_threshold.max(1e-3);
+        let tag = (params.bins.max(1), threshold.to_bits());
         let moving = |s: usize| moving.get(s).copied().unwrap_or(true);
         let reusable = self.static_links.as_ref().is_some_and(|kept| {
-            kept.bins == params.bins.max(1)
-                && kept.threshold == threshold.to_bits()
-                && kept.excluded.len() == roots
-                && (0..roots).all(|s| !moving(s) || kept.excluded[s])
+            (kept.bins, kept.threshold) == tag && kept.excluded.len() == roots && (0..roots).all(|s| !moving(s) || kept.excluded[s])
         });
+        (self.times.kept_bins_relinked, self.times.kept_links_made) = (None, false);
+        // With kept links derived from the full links the leaves were last pushed down from: the nodes
+        // whose links differ from those.
+        let mut differs_from_pushed: Option<Vec<bool>> = None;
         if !reusable {
             if self.static_links.is_none() && !(0..roots).any(moving) {
                 // Nothing moves and nothing is kept: a plain rebuild, keeping nothing.
@@ -666,12 +796,44 @@ impl RadiositySolver {
                     excluded = union;
                 }
             }
-            // The old kept and merged links go before the new ones are made (memory).
-            (self.static_links, self.links) = (None, Vec::new());
             self.use_bins(params);
-            let mut links = vec![EMPTY; self.hierarchy.nodes.len() * self.node_bins()];
-            let (count, _) = self.link_segments(&mut links, threshold, false, |r| !excluded[r], |s| !excluded[s]);
-            self.static_links = Some(StaticLinks { excluded, bins: params.bins.max(1), threshold: threshold.to_bits(), links, count });
+            let size = self.hierarchy.nodes.len() * self.node_bins();
+            let old = self.static_links.take();
+            let full = self.full_links.take();
+            let links = std::mem::take(&mut self.links);
+            // Links that are exact for the segments outside a part of `excluded` (the kept links of an
+            // earlier move, or the full links of a still scene): the kept links follow from them.
+            let source = match (&old, &full) {
+                (Some(k), _) => ((k.bins, k.threshold) == tag
+                    && k.links.len() == size
+                    && k.excluded.len() == roots
+                    && k.excluded.iter().zip(&excluded).all(|(was, is)| !was || *is))
+                    .then(|| (KeptSource::Dense(&k.links), k.excluded.clone())),
+                (None, _) if self.links_full == Some(tag) && links.len() == size => Some((KeptSource::Dense(&links), vec![false; roots])),
+                (None, Some(f)) if (f.bins, f.threshold) == tag && f.offsets.len() == self.hierarchy.nodes.len() + 1 => {
+                    Some((KeptSource::Sparse(f), vec![false; roots]))
+                }
+                _ => None,
+            };
+            // The leaves were pushed down from the sparse full links (they are made by that push-down).
+            let pushed_from_source = matches!(source, Some((KeptSource::Sparse(_), _))) && self.changed_nodes.is_some();
+            let kept = if let Some((source, from)) = source {
+                let (links, count, relinked, differs) = self.derive_kept(source, &from, &excluded, threshold);
+                self.times.kept_bins_relinked = Some(relinked);
+                if pushed_from_source {
+                    differs_from_pushed = Some(differs);
+                }
+                StaticLinks { excluded, bins: tag.0, threshold: tag.1, links, count }
+            } else {
+                // The old kept and merged links go before the new ones are made (memory).
+                drop((old, full, links));
+                let mut links = vec![EMPTY; size];
+                let (count, _) = self.link_segments(&mut links, threshold, None, false, |r| !excluded[r], |s| !excluded[s]);
+                self.times.kept_links_made = true;
+                StaticLinks { excluded, bins: tag.0, threshold: tag.1, links, count }
+            };
+            self.links_full = None;
+            self.static_links = Some(kept);
         }
         let kept = self.static_links.take().expect("made above");
         let per_node = self.node_bins();
@@ -679,7 +841,10 @@ impl RadiositySolver {
         // The merged links of the last call differ from the kept ones only in the bins its moving
         // senders filled (`touched`) and in the moving receivers' nodes: restore those, not the whole array.
         let incremental = links.len() == kept.links.len();
-        let mut changed = vec![!incremental; self.hierarchy.nodes.len()];
+        let mut changed = match &differs_from_pushed {
+            Some(differs) => differs.clone(),
+            None => vec![!incremental; self.hierarchy.nodes.len()],
+        };
         if incremental {
             for &slot in &self.touched {
                 links[slot] = kept.links[slot];
@@ -698,8 +863,8 @@ impl RadiositySolver {
         }
         // Still receivers from moving senders (the bins they fill recorded), then moving receivers from
         // everything.
-        let (still, touched) = self.link_segments(&mut links, threshold, true, |r| !kept.excluded[r], |s| kept.excluded[s]);
-        let (moving, _) = self.link_segments(&mut links, threshold, false, |r| kept.excluded[r], |_| true);
+        let (still, touched) = self.link_segments(&mut links, threshold, None, true, |r| !kept.excluded[r], |s| kept.excluded[s]);
+        let (moving, _) = self.link_segments(&mut links, threshold, None, false, |r| kept.excluded[r], |_| true);
         for &slot in &touched {
             changed[slot / per_node] = true;
         }
@@ -707,7 +872,7 @@ impl RadiositySolver {
         self.touched = touched;
         // Added to what changed since the last push-down (`None`: everything).
         self.changed_nodes = match self.changed_nodes.take() {
-            Some(pending) if incremental && pending.len() == changed.len() => {
+            Some(pending) if (incremental || differs_from_pushed.is_some()) && pending.len() == changed.len() => {
                 changed.iter_mut().zip(pending).for_each(|(c, p)| *c |= p);
                 Some(changed)
             }
@@ -716,6 +881,98 @@ impl RadiositySolver {
         self.links = links;
         self.static_links = Some(kept);
         self.times.create_links_ms = start.elapsed().as_secs_f32() * 1e3;
+    }
+
+    /// The links among the segments outside `excluded` from `source`, links exact for the segments
+    /// outside `from` (a part of `excluded`): each bin of a node outside `excluded` keeps its link unless
+    /// it leads into a segment of `excluded` not in `from`; those bins hold what lies behind, found by
+    /// linking the segments outside `excluded` again, but only the node pairs whose directions can reach
+    /// such a bin (per node, a [`Cone`] around the bins it and its descendants must fill). Exact: a
+    /// bin's shortest link over the senders outside `excluded` is its shortest over those outside `from`
+    /// whenever that one is outside `excluded`, and the linking makes the same node pairs, with the same
+    /// depths, as [`create_links`](Self::create_links) wherever it does not skip.
+    ///
+    /// Returns the links, their filled bins, the bins linked again and, per node, whether its links
+    /// differ from `source`'s.
+    fn derive_kept(&self, source: KeptSource, from: &[bool], excluded: &[bool], threshold: f32) -> (Vec<Link>, usize, usize, Vec<bool>) {
+        let per_node = self.node_bins();
+        let Some(bins) = self.bins.as_ref() else {
+            return (Vec::new(), 0, 0, Vec::new());
+        };
+        let nodes = &self.hierarchy.nodes;
+        let mut segment = vec![0u32; nodes.len()];
+        for (s, (&root, &end)) in self.hierarchy.roots.iter().zip(&self.hierarchy.ends).enumerate() {
+            segment[root as usize..end as usize].fill(s as u32);
+        }
+        let newly = |node: u32| {
+            let s = segment[node as usize] as usize;
+            excluded[s] && !from[s]
+        };
+        let mut links = vec![EMPTY; nodes.len() * per_node];
+        let own: Vec<(Cone, usize)> = links
+            .par_chunks_mut(per_node.max(1))
+            .enumerate()
+            .map(|(k, out)| {
+                if excluded[segment[k] as usize] {
+                    return (Cone::EMPTY, 0);
+                }
+                let mut needed: Vec<u32> = Vec::new();
+                let mut take = |slot: usize, link: Link| {
+                    if link.node == NO_LINK {
+                    } else if newly(link.node) {
+                        needed.push(slot as u32);
+                    } else {
+                        out[slot] = link;
+                    }
+                };
+                match source {
+                    KeptSource::Dense(all) => all[k * per_node..(k + 1) * per_node].iter().enumerate().for_each(|(slot, &link)| take(slot, link)),
+                    KeptSource::Sparse(full) => full.node(k).for_each(|(slot, link)| take(slot, link)),
+                }
+                (Cone::around(needed.iter().map(|&b| (bins.centre(b), bins.half_angle(b)))), needed.len())
+            })
+            .collect();
+        let relinked: usize = own.iter().map(|o| o.1).sum();
+        let differs: Vec<bool> = own.iter().enumerate().map(|(k, o)| o.1 > 0 || excluded[segment[k] as usize]).collect();
+        // Each node's cone holds its descendants' (children come after their parent).
+        let mut cones: Vec<Cone> = own.iter().map(|o| o.0).collect();
+        for k in (0..nodes.len()).rev() {
+            let node = nodes[k];
+            if !node.is_leaf() {
+                let parts = std::iter::once(cones[k]).chain(node.children().map(|c| cones[c as usize])).filter(|c| c.angle >= 0.0);
+                cones[k] = Cone::around(parts.map(|c| (c.axis, c.angle)));
+            }
+        }
+        if relinked > 0 {
+            let extent = self.node_extents();
+            let restrict = Restrict { cones: &cones, extent: &extent };
+            let roots = &self.hierarchy.roots;
+            self.link_segments(&mut links, threshold, Some(restrict), false, |r| !excluded[r] && cones[roots[r] as usize].angle >= 0.0, |s| !excluded[s]);
+        }
+        let count = links.par_iter().filter(|l| l.node != NO_LINK).count();
+        (links, count, relinked, differs)
+    }
+
+    /// Per node, the radius around its position that holds every point of its leaves' dual cells (where
+    /// [`sender_samples`] samples) and its descendants' positions (where they link from).
+    fn node_extents(&self) -> Vec<f32> {
+        let nodes = &self.hierarchy.nodes;
+        let mut extent = vec![0.0f32; nodes.len()];
+        for k in (0..nodes.len()).rev() {
+            let node = nodes[k];
+            extent[k] = if node.is_leaf() {
+                // A dual cell lies within the triangles around its element.
+                self.cells
+                    .of(node.element)
+                    .iter()
+                    .flat_map(|&t| self.elements.triangles[t as usize])
+                    .map(|v| self.elements.vertices[v as usize].distance(node.position))
+                    .fold(node.radius, f32::max)
+            } else {
+                node.children().map(|c| nodes[c as usize].position.distance(node.position) + extent[c as usize]).fold(node.radius, f32::max)
+            };
+        }
+        extent
     }
 
     /// Per hierarchy root, whether its segment holds a moved element (`moved(e)`): the input of
@@ -744,6 +1001,18 @@ impl RadiositySolver {
         per_node * (nodes + self.elements.len() as u64)
     }
 
+    /// Bytes of the [`FullLinks`] kept for the first move (0 while none are kept).
+    pub fn full_links_bytes(&self) -> u64 {
+        self.full_links.as_ref().map_or(0, FullLinks::bytes)
+    }
+
+    /// Frees every link (nodes', leaves', kept and full).
+    pub fn forget_links(&mut self) {
+        (self.links, self.leaf_links) = (Vec::new(), Vec::new());
+        (self.static_links, self.full_links, self.links_full) = (None, None, None);
+        (self.touched, self.changed_nodes) = (Vec::new(), None);
+    }
+
     fn use_bins(&mut self, params: &SolveParams) {
         if self.bins.as_ref().is_none_or(|b| b.n != params.bins.max(1)) {
             self.bins = Some(CubeBins::new(params.bins));
@@ -757,12 +1026,14 @@ impl RadiositySolver {
     }
 
     /// Links every receiving segment `r` with `receives(r)` to every sending segment `s` with
-    /// `sends(s)` into `links` (one array of `6n²` bins per node), keeping the shortest per bin.
-    /// Returns the bins it filled that were empty, and with `record` the indices of the bins it changed.
+    /// `sends(s)` into `links` (one array of `6n²` bins per node), keeping the shortest per bin; with
+    /// `restrict`, only the node pairs that can reach the bins it names. Returns the bins it filled
+    /// that were empty, and with `record` the indices of the bins it changed.
     fn link_segments(
         &self,
         links: &mut [Link],
         threshold: f32,
+        restrict: Option<Restrict>,
         record: bool,
         receives: impl Fn(usize) -> bool + Sync,
         sends: impl Fn(usize) -> bool + Sync,
@@ -793,7 +1064,7 @@ impl RadiositySolver {
             .into_par_iter()
             .map(|(root, links)| {
                 let touched = if record { Some(Vec::new()) } else { None };
-                let mut linker = Linker { nodes, surface, bins, threshold, base: root, links, stored: 0, touched };
+                let mut linker = Linker { nodes, surface, bins, threshold, base: root, links, stored: 0, touched, restrict };
                 for &other in &senders {
                     linker.link(root, other);
                 }
@@ -874,9 +1145,13 @@ impl RadiositySolver {
         self.times.leaves_pushed = pushed;
         self.changed_nodes = Some(vec![false; self.hierarchy.nodes.len()]);
         // The nodes' own links are only the push-down's input: free them (they are the larger array),
-        // unless the next relink merges into them.
+        // unless the next relink merges into them. The full links of a still scene are kept sparse
+        // (with `keep_full_links`), for the first move.
         if self.static_links.is_none() {
-            self.links = Vec::new();
+            let links = std::mem::take(&mut self.links);
+            if let Some(tag) = self.links_full.take().filter(|_| self.keep_full_links) {
+                self.full_links = Some(FullLinks::from_dense(&links, per_node, tag));
+            }
         }
         self.times.refine_push_ms = start.elapsed().as_secs_f32() * 1e3;
     }
@@ -1034,6 +1309,8 @@ struct Linker<'a> {
     stored: usize,
     /// With `Some`, the bins (indices into `links`) whose link changed.
     touched: Option<Vec<usize>>,
+    /// With `Some`, the pairs that cannot reach a bin the receiver must fill are skipped.
+    restrict: Option<Restrict<'a>>,
 }
 
 impl Linker<'_> {
@@ -1041,6 +1318,22 @@ impl Linker<'_> {
     /// for its bin, down to the leaves.
     fn link(&mut self, a: u32, b: u32) {
         let (na, nb) = (self.nodes[a as usize], self.nodes[b as usize]);
+        if let Some(restrict) = self.restrict {
+            let cone = restrict.cones[a as usize];
+            if cone.angle < 0.0 {
+                return;
+            }
+            // Every direction from a point of `a` to one of `b` lies within `asin(reach / r)` of `d`.
+            let d = nb.position - na.position;
+            let r = d.length();
+            let reach = restrict.extent[a as usize] + restrict.extent[b as usize];
+            if r > reach {
+                let limit = (reach / r).asin() + cone.angle;
+                if limit < PI && d.dot(cone.axis) < r * limit.cos() {
+                    return;
+                }
+            }
+        }
         if a == b {
             for ca in na.children() {
                 for cb in na.children() {
@@ -1708,9 +2001,16 @@ mod tests {
 
     /// A plate moving and turning inside a closed box: after each move the links kept among the walls
     /// plus the relinked plate (§4's update) are the links made from scratch: every bin the same
-    /// distance (the node only differs where two senders tie), and the same light.
+    /// distance (the node only differs where two senders tie), and the same light. The kept links are
+    /// derived from the full links at the first move, from the full links still in place or from those
+    /// the push-down kept ([`FullLinks`]).
     #[test]
     fn relinking_after_a_move_gives_the_links_made_from_scratch() {
+        relinking_gives_the_links_made_from_scratch(false);
+        relinking_gives_the_links_made_from_scratch(true);
+    }
+
+    fn relinking_gives_the_links_made_from_scratch(push_first: bool) {
         let mut patches = closed_box(0.7, 0.0);
         patches[0] = RadiosityPatch { triangles: square(-Vec3::X, Vec3::X, 2.0, Vec3::splat(0.7), Vec3::ONE) };
         // A second closed box beside it, lit by its own glowing wall: it never sees the plate.
@@ -1733,7 +2033,13 @@ mod tests {
         let rest = elements.positions.clone();
         let rest_normals = elements.normals.clone();
         let mut kept = RadiositySolver::new(elements.clone());
+        kept.keep_full_links = push_first;
         kept.create_links(&params);
+        let all_links = kept.times.links;
+        if push_first {
+            kept.refine_and_push();
+            assert!(kept.links.is_empty() && kept.full_links_bytes() > 0, "the push-down keeps the full links sparse");
+        }
         for step in 1..=4 {
             // The plate rises, slides and tilts.
             let turn = Mat3::from_rotation_z(0.2 * step as f32);
@@ -1745,8 +2051,26 @@ mod tests {
             let moving = kept.moving_segments(moved);
             assert_eq!(moving.iter().filter(|m| **m).count(), 1, "the plate is one segment");
             kept.relink(&params, &moving);
+            if step == 1 {
+                // Only the bins that saw the plate are linked again, not the walls with each other.
+                let relinked = kept.times.kept_bins_relinked.expect("kept links derived from the full links");
+                assert!(!kept.times.kept_links_made);
+                assert!(relinked > 0 && relinked * 5 < all_links, "{relinked} of {all_links} bins relinked");
+                assert_eq!(kept.full_links_bytes(), 0, "the full links go once the kept links are made");
+                if push_first {
+                    let (pushed, all) = (kept.times.leaves_pushed, kept.elements.len());
+                    assert!(pushed == all, "the last push-down ran before the relink: {pushed} of {all}");
+                }
+            } else {
+                assert_eq!(kept.times.kept_bins_relinked, None, "step {step}: the kept links are reused");
+            }
             let kept_links = kept.links.clone();
             kept.refine_and_push();
+            if step == 1 && push_first {
+                // The second box never sees the plate: its leaves keep what the still scene pushed down.
+                let (pushed, all) = (kept.times.leaves_pushed, kept.elements.len());
+                assert!(pushed < all, "first move: {pushed} of {all} leaves pushed again");
+            }
             kept.illuminate(&[], &params);
 
             let mut fresh = RadiositySolver::new(elements.clone());
@@ -1780,13 +2104,22 @@ mod tests {
                 assert!(pushed <= all - turned_away, "step {step}: {pushed} of {all} leaves pushed ({turned_away} turned away)");
             }
         }
-        // The plate is the only segment left out of the kept links, and a wall that starts moving remakes them.
+        // The plate is the only segment left out of the kept links, and a wall that starts moving derives
+        // them from those, leaving out the plate and the wall: still the links made from scratch.
         let excluded = &kept.static_links.as_ref().unwrap().excluded;
         assert_eq!(excluded.iter().filter(|x| **x).count(), 1);
         let mut moving = vec![false; excluded.len()];
         moving[0] = true;
         kept.relink(&params, &moving);
-        assert!(kept.static_links.as_ref().unwrap().excluded[0]);
+        let excluded = &kept.static_links.as_ref().unwrap().excluded;
+        assert!(excluded[0] && excluded.iter().filter(|x| **x).count() == 2, "the wall and the plate left out");
+        assert!(kept.times.kept_bins_relinked.is_some(), "derived from the kept links of the plate's move");
+        let mut fresh = RadiositySolver::new(elements.clone());
+        fresh.update_elements(&kept.elements.positions.clone(), &kept.elements.normals.clone());
+        fresh.create_links(&params);
+        assert_eq!(kept.times.links, fresh.times.links, "a wall moving too: linked bins");
+        let worst = kept.links.iter().zip(&fresh.links).map(|(a, b)| if a.distance == b.distance { 0.0 } else { (a.distance - b.distance).abs() / b.distance }).fold(0.0f32, f32::max);
+        assert!(worst <= 1e-5, "a wall moving too: a bin's distance differs by {worst} (relative)");
     }
 
     /// A glowing plate sweeping over a floor, its elements refitted every frame (§4.2.1) and relinked
