@@ -164,6 +164,11 @@ fn changed_boxes(old: &[InstanceRecord], new: &[InstanceRecord]) -> (Vec<(Vec3, 
 pub struct PhotonGridState {
     job: CpuJob<PhotonGridSettings, PhotonGridCore, Prepared>,
     shown: Option<ShownField>,
+    /// A new field that arrived while the shown one was still blending in: it waits for that blend to
+    /// end (at most [`BLEND_FRAMES`](background::BLEND_FRAMES) − 1 frames), and then starts from the
+    /// start the background laid out from the field it replaces, so that the main thread never mixes
+    /// fields itself.
+    pending: Option<(NewField, Arc<Vec<u32>>)>,
 }
 
 /// Everything the preparation depends on: the scene and the settings it reads (not the gather-only
@@ -230,6 +235,7 @@ pub(super) fn update_photon_grid(
         MethodUse::Waiting => return,
         MethodUse::Off => {
             if state.shown.take().is_some() || state.job.is_active() {
+                state.pending = None;
                 state.job.reset();
                 *output = PhotonGridOutput { generation: output.generation + 1, ..default() };
                 (activity.busy, activity.ready) = (false, false);
@@ -251,7 +257,19 @@ pub(super) fn update_photon_grid(
             &[(&DIAGNOSTIC_VOXELIZE, t.voxelize_ms), (&DIAGNOSTIC_TRACE, t.trace_ms), (&DIAGNOSTIC_RGRID, t.rgrid_ms), (&DIAGNOSTIC_FIELD, t.field_ms)],
         );
         *activity = PhotonGridActivity { updates: activity.updates + 1, frames_since_start: activity.frames_since_start, ..done };
-        state.shown = field.map(|field| ShownField::after(state.shown.take(), field, occupancy));
+        let waits = |shown: &ShownField, field: &NewField| !shown.blend.is_done() && field.from.is_some() && shown.layout == field.layout;
+        match (field, state.shown.take()) {
+            // The shown field still blends in: the new one waits for its end, unless one already waits
+            // (its start was laid out from the waiting field, never shown: made here from what is shown).
+            (Some(field), Some(shown)) if state.pending.is_none() && waits(&shown, &field) => {
+                state.pending = Some((field, occupancy));
+                state.shown = Some(shown);
+            }
+            (field, shown) => {
+                state.pending = None;
+                state.shown = field.map(|field| ShownField::after(shown, field, occupancy));
+            }
+        }
         if state.shown.is_none() {
             let (generation, field_generation) = (output.generation + 1, output.field_generation + 1);
             *output = PhotonGridOutput { generation, field_generation, ..default() };
@@ -267,7 +285,13 @@ pub(super) fn update_photon_grid(
         activity.frames_since_start += 1;
     }
 
-    // 3. Write the output when the field, the blend or a gather setting changed.
+    // 3. Write the output when the field, the blend or a gather setting changed (a waiting field
+    //    starts once the blend before it ended).
+    if state.shown.as_ref().is_some_and(|shown| shown.blend.is_done())
+        && let Some((field, occupancy)) = state.pending.take()
+    {
+        state.shown = Some(ShownField::after(state.shown.take(), field, occupancy));
+    }
     if let Some(shown) = &mut state.shown {
         let weight = shown.blend.advance();
         if weight.is_some() || shown.drawn.as_ref() != Some(&settings) || shown.new_buffers {
@@ -296,7 +320,7 @@ pub(super) fn update_photon_grid(
             };
         }
     }
-    activity.busy = state.job.is_stale(&key) || state.shown.as_ref().is_some_and(|s| !s.blend.is_done());
+    activity.busy = state.job.is_stale(&key) || state.pending.is_some() || state.shown.as_ref().is_some_and(|s| !s.blend.is_done());
     activity.ready = state.shown.is_some();
     params.status.set_background(GiMethod::PhotonGrid, activity.ready, activity.busy, activity.frames_since_start, activity.updates);
     params.cost.photon_grid_ms = frame_start.elapsed().as_secs_f32() * 1e3;
