@@ -41,8 +41,8 @@
 //!    O(scene²). The kept links are made once, when a segment starts moving, from the links of the
 //!    still scene, which the solver keeps sparse for that (only the filled bins, [`FullLinks`](solver::FullLinks)):
 //!    a bin keeps its link unless it leads into the segment that starts moving, and only those bins
-//!    are linked again, skipping every node pair whose directions cannot reach one of them (a cone of
-//!    the bins to fill per node and its descendants). The result is again the links made from scratch
+//!    are linked again, skipping every node pair whose directions cannot reach one of them (per node,
+//!    a cone around the bins it and its descendants must fill, one per moving segment they saw). The result is again the links made from scratch
 //!    (a unit test compares every bin); in `dynamic` the first move relinks 37 000 bins in 0.5 s instead
 //!    of making 6.6 million in 6.5 s.
 //! 3. **Refine and push down** (§4.2.3–4.2.4): each leaf ends with, per bin, the shortest of its own and
@@ -140,8 +140,8 @@
 //!   after the sphere stops (`docs/dynamic.md`). The first solve after a segment starts moving derives
 //!   the kept links from the still scene's: 2.2 s there (links 1.3 s, of which 0.5 s relinking the
 //!   37 000 bins that saw the sphere; push-down 0.6 s) instead of the 8 s of a full solve. With ten
-//!   meshes starting at once the bins to relink are spread over every direction: 231 000 bins in 3.1 s
-//!   (the per-node cone around them is wide), still half a full solve.
+//!   meshes starting at once, 231 000 bins to relink: links 3.5–3.8 s, half a full solve (the cost per
+//!   relinked bin is that of one mesh: the pairs left to visit grow with the bins to fill).
 //! * While nothing moves, the still scene's links are kept sparse for the first move (about 10 bytes per
 //!   filled bin: 63 MiB in `dynamic`, where the leaves' links take 219 MiB); while meshes move, the kept
 //!   and the merged links together take twice the node links' memory

@@ -685,7 +685,7 @@ struct Cone {
 impl Cone {
     const EMPTY: Cone = Cone { axis: Vec3::Z, angle: -1.0 };
 
-    /// A cone holding the cones `(axis, angle)` (unit axes): around their mean axis.
+    /// A cone holding the cones `(axis, angle)` (unit axes): around their mean axis. `EMPTY` for none.
     fn around(parts: impl Iterator<Item = (Vec3, f32)> + Clone) -> Cone {
         let sum: Vec3 = parts.clone().map(|(a, _)| a).sum();
         if parts.clone().next().is_none() {
@@ -702,12 +702,31 @@ impl Cone {
 }
 
 /// What a linking restricted to some bins ([`RadiositySolver::relink`]'s derivation of kept links) skips
-/// by: per node, the cone of the bins it and its descendants must fill ([`Cone`]), and the radius around
-/// its position that holds every point its descendants link from or are sampled at.
+/// by: per node, the cones of the bins it and its descendants must fill ([`Cone`]s, one per segment
+/// their links led into, so that meshes in different directions do not widen one cone over all of
+/// them; empty: nothing to fill), and the radius around its position that holds every point its
+/// descendants link from or are sampled at.
 #[derive(Clone, Copy)]
 struct Restrict<'a> {
-    cones: &'a [Cone],
+    cones: &'a [Vec<Cone>],
     extent: &'a [f32],
+}
+
+/// Most cones per node in a [`Restrict`]; more are merged into one.
+const MAX_CONES: usize = 16;
+
+/// Cones tagged by segment (`(segment, cone)`), sorted by segment, merged into one per segment (all into
+/// one past [`MAX_CONES`]).
+fn merge_cones(mut tagged: Vec<(u32, Cone)>) -> Vec<(u32, Cone)> {
+    tagged.sort_unstable_by_key(|t| t.0);
+    let mut merged: Vec<(u32, Cone)> = Vec::new();
+    for group in tagged.chunk_by(|a, b| a.0 == b.0) {
+        merged.push((group[0].0, Cone::around(group.iter().map(|(_, c)| (c.axis, c.angle)))));
+    }
+    if merged.len() > MAX_CONES {
+        merged = vec![(u32::MAX, Cone::around(merged.iter().map(|(_, c)| (c.axis, c.angle))))];
+    }
+    merged
 }
 
 impl RadiositySolver {
@@ -909,18 +928,19 @@ impl RadiositySolver {
             excluded[s] && !from[s]
         };
         let mut links = vec![EMPTY; nodes.len() * per_node];
-        let own: Vec<(Cone, usize)> = links
+        // Per node, the bins to fill: one cone per segment their links led into, and how many.
+        let own: Vec<(Vec<(u32, Cone)>, usize)> = links
             .par_chunks_mut(per_node.max(1))
             .enumerate()
             .map(|(k, out)| {
                 if excluded[segment[k] as usize] {
-                    return (Cone::EMPTY, 0);
+                    return (Vec::new(), 0);
                 }
-                let mut needed: Vec<u32> = Vec::new();
+                let mut needed: Vec<(u32, u32)> = Vec::new();
                 let mut take = |slot: usize, link: Link| {
                     if link.node == NO_LINK {
                     } else if newly(link.node) {
-                        needed.push(slot as u32);
+                        needed.push((segment[link.node as usize], slot as u32));
                     } else {
                         out[slot] = link;
                     }
@@ -929,25 +949,28 @@ impl RadiositySolver {
                     KeptSource::Dense(all) => all[k * per_node..(k + 1) * per_node].iter().enumerate().for_each(|(slot, &link)| take(slot, link)),
                     KeptSource::Sparse(full) => full.node(k).for_each(|(slot, link)| take(slot, link)),
                 }
-                (Cone::around(needed.iter().map(|&b| (bins.centre(b), bins.half_angle(b)))), needed.len())
+                let tagged = needed.iter().map(|&(s, b)| (s, Cone { axis: bins.centre(b), angle: bins.half_angle(b) })).collect();
+                (merge_cones(tagged), needed.len())
             })
             .collect();
         let relinked: usize = own.iter().map(|o| o.1).sum();
         let differs: Vec<bool> = own.iter().enumerate().map(|(k, o)| o.1 > 0 || excluded[segment[k] as usize]).collect();
-        // Each node's cone holds its descendants' (children come after their parent).
-        let mut cones: Vec<Cone> = own.iter().map(|o| o.0).collect();
+        // Each node's cones hold its descendants' (children come after their parent).
+        let mut tagged: Vec<Vec<(u32, Cone)>> = own.into_iter().map(|o| o.0).collect();
         for k in (0..nodes.len()).rev() {
             let node = nodes[k];
-            if !node.is_leaf() {
-                let parts = std::iter::once(cones[k]).chain(node.children().map(|c| cones[c as usize])).filter(|c| c.angle >= 0.0);
-                cones[k] = Cone::around(parts.map(|c| (c.axis, c.angle)));
+            if !node.is_leaf() && node.children().any(|c| !tagged[c as usize].is_empty()) {
+                let mut all = std::mem::take(&mut tagged[k]);
+                node.children().for_each(|c| all.extend_from_slice(&tagged[c as usize]));
+                tagged[k] = merge_cones(all);
             }
         }
+        let cones: Vec<Vec<Cone>> = tagged.into_iter().map(|t| t.into_iter().map(|(_, c)| c).collect()).collect();
         if relinked > 0 {
             let extent = self.node_extents();
             let restrict = Restrict { cones: &cones, extent: &extent };
             let roots = &self.hierarchy.roots;
-            self.link_segments(&mut links, threshold, Some(restrict), false, |r| !excluded[r] && cones[roots[r] as usize].angle >= 0.0, |s| !excluded[s]);
+            self.link_segments(&mut links, threshold, Some(restrict), false, |r| !excluded[r] && !cones[roots[r] as usize].is_empty(), |s| !excluded[s]);
         }
         let count = links.par_iter().filter(|l| l.node != NO_LINK).count();
         (links, count, relinked, differs)
@@ -1319,8 +1342,8 @@ impl Linker<'_> {
     fn link(&mut self, a: u32, b: u32) {
         let (na, nb) = (self.nodes[a as usize], self.nodes[b as usize]);
         if let Some(restrict) = self.restrict {
-            let cone = restrict.cones[a as usize];
-            if cone.angle < 0.0 {
+            let cones = &restrict.cones[a as usize];
+            if cones.is_empty() {
                 return;
             }
             // Every direction from a point of `a` to one of `b` lies within `asin(reach / r)` of `d`.
@@ -1328,8 +1351,12 @@ impl Linker<'_> {
             let r = d.length();
             let reach = restrict.extent[a as usize] + restrict.extent[b as usize];
             if r > reach {
-                let limit = (reach / r).asin() + cone.angle;
-                if limit < PI && d.dot(cone.axis) < r * limit.cos() {
+                let spread = (reach / r).asin();
+                let reaches = |cone: &Cone| {
+                    let limit = spread + cone.angle;
+                    limit >= PI || d.dot(cone.axis) >= r * limit.cos()
+                };
+                if !cones.iter().any(reaches) {
                     return;
                 }
             }
