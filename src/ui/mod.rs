@@ -435,6 +435,17 @@ fn radiosity_activity_ui(ui: &mut egui::Ui, a: &RadiosityActivity) {
         "in the background: update {:.1} ms, links {:.1} ms, refine+push {:.1} ms, illumination {:.1} ms ({} bounces)",
         t.update_elements_ms, t.create_links_ms, t.refine_push_ms, t.illumination_ms, t.bounces_run
     ));
+    if a.kept_links_derived + a.kept_links_made > 0 {
+        let last = match (t.kept_bins_relinked, t.kept_links_made) {
+            (Some(bins), _) => format!("; last solve derived them, relinking {bins} bins"),
+            (None, true) => "; last solve made them anew".to_string(),
+            (None, false) => String::new(),
+        };
+        ui.label(format!(
+            "links kept among the still meshes: derived {} times, made anew {} times{last}",
+            a.kept_links_derived, a.kept_links_made
+        ));
+    }
 }
 
 /// The widgets of a camera's [`PhotonGridSettings`]; each range is the field's valid range. ASCII
