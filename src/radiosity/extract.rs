@@ -442,12 +442,13 @@ fn solve(core: &mut RadiosityCore, snapshot: &SceneSnapshot, key: &SolveKey) -> 
             _ => core.solver.create_links(&params),
         }
         core.solver.refine_and_push();
-        times.create_links_ms = core.solver.times.create_links_ms;
-        times.refine_push_ms = core.solver.times.refine_push_ms;
-        times.links = core.solver.times.links;
-        times.leaves_pushed = core.solver.times.leaves_pushed;
-        times.kept_bins_relinked = core.solver.times.kept_bins_relinked;
-        times.kept_links_made = core.solver.times.kept_links_made;
+        // The link stages as the solver reported them; the elements and the light are timed here.
+        times = StageTimes {
+            update_elements_ms: times.update_elements_ms,
+            illumination_ms: times.illumination_ms,
+            bounces_run: times.bounces_run,
+            ..core.solver.times
+        };
         core.links_key = links_key;
         core.lighting_key = None;
         if work == RadiosityWork::Reused {

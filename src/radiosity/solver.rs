@@ -675,7 +675,7 @@ enum KeptSource<'a> {
     Sparse(&'a FullLinks),
 }
 
-/// A cone of directions: every direction within `angle` of `axis` (`angle < 0`: none).
+/// A cone of directions: every direction within `angle` of `axis`.
 #[derive(Clone, Copy, Debug)]
 struct Cone {
     axis: Vec3,
@@ -683,14 +683,10 @@ struct Cone {
 }
 
 impl Cone {
-    const EMPTY: Cone = Cone { axis: Vec3::Z, angle: -1.0 };
-
-    /// A cone holding the cones `(axis, angle)` (unit axes): around their mean axis. `EMPTY` for none.
+    /// A cone holding the cones `(axis, angle)` (unit axes, at least one): around their mean axis.
     fn around(parts: impl Iterator<Item = (Vec3, f32)> + Clone) -> Cone {
         let sum: Vec3 = parts.clone().map(|(a, _)| a).sum();
-        if parts.clone().next().is_none() {
-            return Cone::EMPTY;
-        }
+        // Axes that cancel (or none): every direction.
         if sum.length_squared() < 1e-6 {
             return Cone { axis: Vec3::Z, angle: PI };
         }
@@ -906,7 +902,7 @@ impl RadiositySolver {
     /// outside `from` (a part of `excluded`): each bin of a node outside `excluded` keeps its link unless
     /// it leads into a segment of `excluded` not in `from`; those bins hold what lies behind, found by
     /// linking the segments outside `excluded` again, but only the node pairs whose directions can reach
-    /// such a bin (per node, a [`Cone`] around the bins it and its descendants must fill). Exact: a
+    /// such a bin ([`Restrict`]: per node, cones around the bins it and its descendants must fill). Exact: a
     /// bin's shortest link over the senders outside `excluded` is its shortest over those outside `from`
     /// whenever that one is outside `excluded`, and the linking makes the same node pairs, with the same
     /// depths, as [`create_links`](Self::create_links) wherever it does not skip.
