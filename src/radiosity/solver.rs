@@ -84,13 +84,17 @@ impl CubeBins {
         } else {
             (4, d.z, d.x, d.y)
         };
+        let n = self.n as f32;
+        let index = |c: f32, major: f32| (((c / major + 1.0) * 0.5 * n) as i64).clamp(0, self.n as i64 - 1) as u32;
         if major < 0.0 {
-            return self.opposite(self.bin(-d));
+            // `opposite(bin(−d))` without the call: `(−c) / (−major)` is `c / major` exactly, and the
+            // opposite bin mirrors both coordinates on the other face of the axis.
+            let major = (-major).max(f32::MIN_POSITIVE);
+            let last = self.n - 1;
+            return (face + 1) * self.n * self.n + (last - index(-v, major)) * self.n + (last - index(-u, major));
         }
         let major = major.max(f32::MIN_POSITIVE);
-        let n = self.n as f32;
-        let index = |c: f32| (((c / major + 1.0) * 0.5 * n) as i64).clamp(0, self.n as i64 - 1) as u32;
-        face * self.n * self.n + index(v) * self.n + index(u)
+        face * self.n * self.n + index(v, major) * self.n + index(u, major)
     }
 
     /// The bin of the opposite direction: the other face of the axis, both coordinates mirrored. Links
