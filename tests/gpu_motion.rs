@@ -64,6 +64,18 @@ fn main_thread_ms(report: &HeadlessReport) -> Vec<f64> {
     report.sidecar["main_thread_ms"].as_array().expect("main_thread_ms").iter().filter_map(|v| v.as_f64()).collect()
 }
 
+/// Checks that the last background run after a move redid some of `total` items but fewer than half:
+/// what a change costs is what it touches.
+fn check_redid_a_part(test: &str, report: &HeadlessReport, done: f64, total: f64, what: &str) {
+    check(
+        test,
+        done > 0.0 && done < 0.5 * total,
+        &report.image,
+        None,
+        format!("the last background run after the move redid {done} of {total} {what} (expected some, fewer than half)"),
+    );
+}
+
 /// Returns the moving run's report.
 fn follows_a_moving_mesh(method: GiMethod) -> HeadlessReport {
     let test = format!("motion_{}", method.name());
@@ -122,9 +134,18 @@ fn radiance_hints_follows_a_moving_mesh_without_stalling() {
     follows_a_moving_mesh(GiMethod::RadianceHints);
 }
 
+/// Also: the walk after the sphere's move walks again only the light paths that ran near it (its old
+/// and new bounds) and traces only the shadow-map texels whose rays pass there, not the whole scene's.
 #[test]
 fn vpls_follow_a_moving_mesh_without_stalling() {
-    follows_a_moving_mesh(GiMethod::Vpl);
+    let moving = follows_a_moving_mesh(GiMethod::Vpl);
+    let vpl = &moving.sidecar["vpl"];
+    let number = |k: &str| vpl[k].as_f64().unwrap_or(f64::NAN);
+    let (walked, paths) = (number("paths_walked"), number("paths"));
+    let (traced, texels) = (number("texels_traced"), number("texels"));
+    eprintln!("motion_vpl: the last walk walked {walked} of {paths} paths and traced {traced} of {texels} shadow-map texels");
+    check_redid_a_part("motion_vpl", &moving, walked, paths, "light paths");
+    check_redid_a_part("motion_vpl", &moving, traced, texels, "shadow-map texels");
 }
 
 #[test]
@@ -152,20 +173,8 @@ fn the_photon_grid_follows_a_moving_mesh_without_stalling() {
     let (traced, paths) = (number("paths_traced"), number("paths"));
     let (marched, rays) = (number("rays_marched"), number("rays"));
     eprintln!("motion_photon_grid: the last preparation traced {traced} of {paths} paths and marched {marched} of {rays} probe rays");
-    check(
-        "motion_photon_grid",
-        traced > 0.0 && traced < 0.5 * paths,
-        &moving.image,
-        None,
-        format!("the last preparation after the move traced {traced} of {paths} photon paths (expected some, fewer than half)"),
-    );
-    check(
-        "motion_photon_grid",
-        marched > 0.0 && marched < 0.5 * rays,
-        &moving.image,
-        None,
-        format!("the last preparation after the move marched {marched} of {rays} probe rays (expected some, fewer than half)"),
-    );
+    check_redid_a_part("motion_photon_grid", &moving, traced, paths, "photon paths");
+    check_redid_a_part("motion_photon_grid", &moving, marched, rays, "probe rays");
 }
 
 /// Radiance Hints with little noise between runs (as `gpu_radiance_hints`' scroll test): what is left

@@ -658,7 +658,9 @@ fn drive(
                 map.insert(
                     "vpl".into(),
                     json!({ "vpls": vpls.vpls.len(), "points": vpls.points.len(), "busy": vpls.busy,
-                            "last_walk_ms": vpls.last_walk_ms }),
+                            "last_walk_ms": vpls.last_walk_ms, "paths_walked": vpls.last_redone.paths,
+                            "paths": vpls.last_redone.paths_total, "texels_traced": vpls.last_redone.texels,
+                            "texels": vpls.last_redone.texels_total }),
                 );
             }
             if headless.options.method == HeadlessMethod::Gi(crate::camera::GiMethod::PhotonGrid) {

@@ -118,44 +118,20 @@ struct TraceKey {
 }
 
 /// An instance as a preparation saw it: key, version, world bounds and whether its material emits.
-type InstanceRecord = (u64, u64, (Vec3, Vec3), bool);
+type InstanceRecord = crate::scene::changes::InstanceRecord<bool>;
 
 /// The instances of `snapshot` as [`PhotonGridCore::instances`] keeps them.
 fn instance_table(snapshot: &SceneSnapshot, exposure: f32) -> Vec<InstanceRecord> {
-    snapshot
-        .instances()
-        .iter()
-        .map(|i| {
-            let emits = snapshot.materials.get(i.material as usize).is_some_and(|m| m.emission(exposure).max_element() > 0.0);
-            (i.key, i.version, i.bounds, emits)
-        })
-        .collect()
+    crate::scene::changes::instance_records(snapshot, |i| {
+        snapshot.materials.get(i.material as usize).is_some_and(|m| m.emission(exposure).max_element() > 0.0)
+    })
 }
 
 /// The world boxes that changed between two instance tables (the old and new bounds of every instance
 /// moved, re-materialed, added or removed), and whether one of those instances emits light.
 fn changed_boxes(old: &[InstanceRecord], new: &[InstanceRecord]) -> (Vec<(Vec3, Vec3)>, bool) {
-    let (mut boxes, mut emitters) = (Vec::new(), false);
-    let (mut a, mut b) = (old.iter().peekable(), new.iter().peekable());
-    loop {
-        let (was, is) = match (a.peek(), b.peek()) {
-            (None, None) => break,
-            (Some(x), Some(y)) if x.0 == y.0 => (a.next(), b.next()),
-            (Some(x), Some(y)) if x.0 < y.0 => (a.next(), None),
-            (Some(_), None) => (a.next(), None),
-            _ => (None, b.next()),
-        };
-        if let (Some(x), Some(y)) = (was, is)
-            && x.1 == y.1
-        {
-            continue;
-        }
-        for &(_, _, bounds, emits) in was.into_iter().chain(is) {
-            boxes.push(bounds);
-            emitters |= emits;
-        }
-    }
-    (boxes, emitters)
+    let changed = crate::scene::changes::changed_boxes(old, new);
+    (changed.iter().map(|&(bounds, _)| bounds).collect(), changed.iter().any(|&(_, emits)| emits))
 }
 
 /// The main-world state: the grids (in a background task while one runs), the running preparation and

@@ -12,6 +12,7 @@ use rand::RngExt;
 use rayon::prelude::*;
 
 use crate::sampling::{cosine_hemisphere, fibonacci_sphere, orthonormal_basis, rng_for, uniform2, uniform_sphere};
+use crate::scene::changes::segment_meets_box;
 use crate::scene::environment::Environment;
 use crate::scene::{OPEN_BACK, OPEN_FRONT, SceneSnapshot, SnapshotLight, range_falloff, triangle_area, triangle_box_overlap};
 use crate::sh::{COSINE_LOBE, band, basis};
@@ -676,32 +677,6 @@ impl PhotonPaths {
         [stats.emitted, stats.absorbed, stats.escaped, stats.truncated] = sums.map(|v| v.as_vec3());
         self.stats = stats;
     }
-}
-
-/// Whether the segment from `a` to `b` meets the box `(lo, hi)` (slab test; a degenerate segment is
-/// a point).
-pub fn segment_meets_box(a: Vec3, b: Vec3, (lo, hi): (Vec3, Vec3)) -> bool {
-    let d = b - a;
-    let (mut t0, mut t1) = (0.0f32, 1.0f32);
-    for k in 0..3 {
-        if d[k].abs() < 1e-12 {
-            if a[k] < lo[k] || a[k] > hi[k] {
-                return false;
-            }
-            continue;
-        }
-        let inv = 1.0 / d[k];
-        let (mut near, mut far) = ((lo[k] - a[k]) * inv, (hi[k] - a[k]) * inv);
-        if near > far {
-            std::mem::swap(&mut near, &mut far);
-        }
-        t0 = t0.max(near);
-        t1 = t1.min(far);
-        if t0 > t1 {
-            return false;
-        }
-    }
-    true
 }
 
 /// `cos(outer)` of a spot cone from Bevy's scale and offset.
@@ -1421,18 +1396,6 @@ mod tests {
         assert_eq!(field.cell_probe, fresh.cell_probe);
         assert_eq!(field.coefficients, fresh.coefficients, "the field is the one built from scratch");
         assert_eq!(field.inside, fresh.inside);
-    }
-
-    #[test]
-    fn segments_meet_boxes_they_cross_and_miss_the_others() {
-        let b = (Vec3::splat(-1.0), Vec3::splat(1.0));
-        assert!(segment_meets_box(Vec3::new(-5.0, 0.0, 0.0), Vec3::new(5.0, 0.0, 0.0), b));
-        assert!(segment_meets_box(Vec3::ZERO, Vec3::ZERO, b), "a point inside");
-        assert!(segment_meets_box(Vec3::new(0.5, 0.5, 0.5), Vec3::new(3.0, 3.0, 3.0), b), "starting inside");
-        assert!(!segment_meets_box(Vec3::new(-5.0, 2.0, 0.0), Vec3::new(5.0, 2.0, 0.0), b), "passing above");
-        assert!(!segment_meets_box(Vec3::new(-5.0, 0.0, 0.0), Vec3::new(-2.0, 0.0, 0.0), b), "ending before it");
-        assert!(!segment_meets_box(Vec3::new(-3.0, 0.0, 0.0), Vec3::new(0.0, 3.5, 0.0), b), "cutting past its corner");
-        assert!(segment_meets_box(Vec3::new(-3.0, 0.0, 0.0), Vec3::new(0.0, 1.4, 0.0), b), "cutting its corner");
     }
 
     fn trace(snapshot: &SceneSnapshot, photons: u32, reflections: u32, resolution: u32) -> (GridLayout, Vec<Photon>, PhotonStats) {

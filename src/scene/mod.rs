@@ -37,6 +37,7 @@
 //! Morph targets are not applied (a morphed mesh is in its base shape); block-compressed textures cannot be
 //! read on the CPU and are white; alpha-blended materials are opaque to rays.
 
+pub mod changes;
 pub mod environment;
 pub(crate) mod extract;
 

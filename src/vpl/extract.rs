@@ -9,9 +9,10 @@ use bevy::render::{Extract, ExtractSchedule};
 use super::{VplSettings, VplVisibility};
 use crate::settings::GiSettings;
 use super::generate::{
-    EmissionGuide, IsmPoint, PilotHits, Vpl, WalkSettings, automatic_bound, generate_vpls, ism_positions, ism_samples, pilot_hits, surface_area,
-    traced_shadow_maps,
+    EmissionGuide, IsmPoint, PilotHits, Vpl, VplPaths, WalkSettings, automatic_bound, ism_positions, ism_samples, pilot_hits, surface_area,
+    traced_shadow_maps, traced_shadow_maps_update,
 };
+use crate::scene::changes::InstanceRecord;
 use crate::background::BackgroundJob;
 use crate::camera::{DiffuseGi, GiDebugView, GiMethod};
 use crate::emitters::{EmitterSamples, GpuEmitter};
@@ -54,6 +55,19 @@ pub struct VplSet {
     /// How long the last walk that changed the set took on its background thread (pilot rays, VPLs,
     /// points and traced shadow maps, whichever it redid), milliseconds.
     pub last_walk_ms: f32,
+    /// What the last walk that changed the VPLs redid: the light paths walked (of all, after meshes
+    /// moved: those whose rays ran through them) and the traced shadow-map texels traced (the kept
+    /// VPLs' texels whose rays pass through what moved, and every texel of the new VPLs).
+    pub last_redone: VplRedone,
+}
+
+/// What one walk redid ([`VplSet::last_redone`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct VplRedone {
+    pub paths: usize,
+    pub paths_total: usize,
+    pub texels: usize,
+    pub texels_total: usize,
 }
 
 /// The main-world side of the walks: the running walk and the caches it keeps between runs.
@@ -79,8 +93,14 @@ struct WalkCaches {
     samples: Option<((u64, u32, u32), Arc<Vec<super::generate::IsmSample>>)>,
     /// The lights' pilot rays, and what they were traced from.
     pilots: Option<((u64, u64, Vec<Entity>), Arc<Vec<PilotHits>>)>,
-    /// The last VPLs, and what their traced shadow maps were made for (the VPLs' key and the side).
+    /// The last light paths (with the records [`VplPaths::rewalk`] reads) and their VPLs, and the
+    /// instances and layout generation they were walked in.
+    paths: VplPaths,
     vpls: Arc<Vec<Vpl>>,
+    instances: Vec<InstanceRecord<()>>,
+    layout: u64,
+    /// The last traced shadow maps, and what they were made for (the VPLs' key and the side).
+    maps: Option<Arc<Vec<u32>>>,
     maps_key: Option<(VplKey, u32)>,
 }
 
@@ -116,6 +136,8 @@ struct Walked {
     points: Option<Vec<IsmPoint>>,
     /// New traced shadow maps (or none, for imperfect ones), when they were redone.
     maps: Option<Option<(u32, Arc<Vec<u32>>)>>,
+    /// What it redid.
+    redone: VplRedone,
     /// The walk's time on its thread, milliseconds.
     ms: f32,
 }
@@ -161,9 +183,12 @@ pub(crate) fn update_vpls(
     // 1. A finished walk: its VPLs and points replace the set's.
     if let Some((_, walked)) = walks.job.poll() {
         walks.finished += 1;
-        let Walked { caches, vpls, points, maps, ms } = walked;
+        let Walked { caches, vpls, points, maps, redone, ms } = walked;
         if vpls.is_some() || points.is_some() || maps.is_some() {
             set.last_walk_ms = ms;
+        }
+        if vpls.is_some() {
+            set.last_redone = redone;
         }
         walks.pilots = caches.pilots.clone();
         walks.caches = Some(caches);
@@ -226,8 +251,8 @@ pub(crate) fn update_vpls(
         let emitters = emitters.as_ref().map(|e| e.samples.clone()).unwrap_or_default();
         walks.job.start(key.clone(), move || {
             let started = std::time::Instant::now();
-            let (vpls, points, maps) = walk_scene(&mut caches, &snapshot, &emitters, &walk_key, &positions);
-            Walked { caches, vpls, points, maps, ms: started.elapsed().as_secs_f32() * 1000.0 }
+            let (vpls, points, maps, redone) = walk_scene(&mut caches, &snapshot, &emitters, &walk_key, &positions);
+            Walked { caches, vpls, points, maps, redone, ms: started.elapsed().as_secs_f32() * 1000.0 }
         });
     }
     // Only the shadow maps' size and kind are baked into the set; gather and SSBC fields are per view.
@@ -245,6 +270,12 @@ pub(crate) fn update_vpls(
 /// after a layout change (O(triangles)) and the points after any geometry change (after moves only, the
 /// same samples follow their triangles: O(points)), and the traced shadow maps when the VPLs or their
 /// side changed (O(VPLs × side²) rays).
+///
+/// When only meshes moved since the last walk (same instances, lights, emitters, guides and settings),
+/// only the paths whose rays ran through their old or new bounds are walked again
+/// ([`VplPaths::rewalk`]), and only the shadow-map texels whose rays pass through those bounds, or
+/// belong to a new VPL, are traced ([`traced_shadow_maps_update`]): the same VPLs and maps as a walk from
+/// scratch, at the cost of what the move touches.
 #[expect(clippy::type_complexity, reason = "what changed, each part optional")]
 fn walk_scene(
     caches: &mut WalkCaches,
@@ -252,7 +283,7 @@ fn walk_scene(
     emitters: &[GpuEmitter],
     key: &WalkKey,
     viewers: &[Vec3],
-) -> (Option<(Arc<Vec<Vpl>>, f32)>, Option<Vec<IsmPoint>>, Option<Option<(u32, Arc<Vec<u32>>)>>) {
+) -> (Option<(Arc<Vec<Vpl>>, f32)>, Option<Vec<IsmPoint>>, Option<Option<(u32, Arc<Vec<u32>>)>>, VplRedone) {
     let VplKey { geometry, lights, gi_lights, walk, .. } = &key.vpls;
     let sources: Vec<_> =
         snapshot.lights.iter().filter(|l| gi_lights.binary_search(&l.entity).is_ok()).map(|l| l.light).collect();
@@ -265,16 +296,61 @@ fn walk_scene(
     // decide when to walk again).
     let guides = caches.pilots.as_ref().map(|(_, hits)| hits.iter().map(|h| EmissionGuide::from_pilots(h, viewers)).collect());
     let vpl_key = VplKey { guides: guides.unwrap_or_default(), ..key.vpls.clone() };
+    let instances = crate::scene::changes::instance_records(snapshot, |_| ());
     let mut vpls = None;
+    let mut redone = VplRedone::default();
+    // With the VPLs' other inputs the same and the same instances, the boxes of the meshes that moved.
+    let moved: Option<Vec<(Vec3, Vec3)>> = caches
+        .vpl_key
+        .as_ref()
+        .filter(|old| VplKey { geometry: vpl_key.geometry, ..(*old).clone() } == vpl_key && caches.layout == key.layout)
+        .map(|_| crate::scene::changes::changed_boxes(&caches.instances, &instances).into_iter().map(|(b, _)| b).collect());
+    // The last maps were traced for the VPLs this walk starts from.
+    let old_maps_side = caches.maps_key.as_ref().filter(|(k, _)| Some(k) == caches.vpl_key.as_ref()).map(|(_, side)| *side);
+    let mut origin = None;
     if caches.vpl_key.as_ref() != Some(&vpl_key) {
-        caches.vpls = Arc::new(generate_vpls(snapshot, &sources, emitters, Some(&vpl_key.guides), *walk));
+        let guides = Some(vpl_key.guides.as_slice());
+        origin = match &moved {
+            Some(boxes) => caches.paths.rewalk(snapshot, &sources, emitters, guides, *walk, boxes),
+            None => {
+                caches.paths = VplPaths::walk(snapshot, &sources, emitters, guides, *walk);
+                None
+            }
+        }
+        .map(|(origin, walked)| {
+            redone.paths = walked;
+            origin
+        });
+        if origin.is_none() {
+            redone.paths = caches.paths.len();
+        }
+        redone.paths_total = caches.paths.len();
+        caches.vpls = Arc::new(caches.paths.vpls.clone());
         vpls = Some((caches.vpls.clone(), surface_area(snapshot)));
         caches.vpl_key = Some(vpl_key.clone());
     }
+    (caches.instances, caches.layout) = (instances, key.layout);
     let maps_key = key.maps.map(|side| (vpl_key, side));
     let mut maps = None;
     if caches.maps_key != maps_key {
-        maps = Some(key.maps.map(|side| (side, Arc::new(traced_shadow_maps(snapshot, &caches.vpls, side)))));
+        caches.maps = key.maps.map(|side| {
+            let texels = caches.vpls.len() * (side * side) as usize;
+            redone.texels_total = texels;
+            // The last maps were traced for the VPLs this walk started from, at this side.
+            let previous = caches.maps.as_ref().filter(|_| old_maps_side == Some(side));
+            Arc::new(match (previous, &origin, &moved) {
+                (Some(old), Some(origin), Some(boxes)) => {
+                    let (maps, traced) = traced_shadow_maps_update(snapshot, &caches.vpls, side, old, origin, boxes);
+                    redone.texels = traced;
+                    maps
+                }
+                _ => {
+                    redone.texels = texels;
+                    traced_shadow_maps(snapshot, &caches.vpls, side)
+                }
+            })
+        });
+        maps = Some(key.maps.zip(caches.maps.clone()));
         caches.maps_key = maps_key;
     }
     let samples_key = (key.layout, key.points, walk.seed);
@@ -288,7 +364,7 @@ fn walk_scene(
         points = Some(ism_positions(snapshot, &samples));
         caches.points_key = Some(points_key);
     }
-    (vpls, points, maps)
+    (vpls, points, maps, redone)
 }
 
 /// The VPL set in the render world (the `Arc`s are shared, not copied).

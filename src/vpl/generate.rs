@@ -274,68 +274,278 @@ pub fn generate_vpls(
     guides: Option<&[EmissionGuide]>,
     settings: WalkSettings,
 ) -> Vec<Vpl> {
-    let Some(bounds) = snapshot.bounds() else {
-        return Vec::new();
-    };
-    if (lights.is_empty() && emitters.is_empty()) || settings.paths == 0 || settings.bounces == 0 {
-        return Vec::new();
+    VplPaths::walk(snapshot, lights, emitters, guides, settings).vpls
+}
+
+/// The light paths of [`generate_vpls`], each with its VPLs and the points its rays ran between, kept
+/// so that after a few meshes moved only the paths whose rays ran through them are walked again
+/// ([`rewalk`](Self::rewalk)). Each path draws its numbers from its own index of its source's Sobol
+/// stream, so a path walked again in an unchanged scene is the same path.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct VplPaths {
+    /// Every VPL, path after path (what [`generate_vpls`] returns).
+    pub vpls: Vec<Vpl>,
+    /// Where each path's VPLs start in `vpls` (one more entry than paths).
+    vpl_offsets: Vec<u32>,
+    /// The points each path's rays ran between: its origin, then the end of every ray it traced (the
+    /// surface hit, or a point beyond the scene for a ray that left it).
+    points: Vec<Vec3>,
+    /// Where each path's points start in `points` (one more entry than paths).
+    point_offsets: Vec<u32>,
+    /// The scene's bounds the paths were walked in (a directional light's beam is fitted to them).
+    bounds: Option<(Vec3, Vec3)>,
+}
+
+/// One path's VPLs and ray end points.
+type WalkedPath = (Vec<Vpl>, Vec<Vec3>);
+
+impl VplPaths {
+    /// Walks every path ([`generate_vpls`]), in parallel.
+    pub fn walk(
+        snapshot: &SceneSnapshot,
+        lights: &[SnapshotLight],
+        emitters: &[GpuEmitter],
+        guides: Option<&[EmissionGuide]>,
+        settings: WalkSettings,
+    ) -> Self {
+        use rayon::prelude::*;
+        let Some(walker) = Walker::new(snapshot, lights, emitters, guides, settings) else {
+            return Self::default();
+        };
+        let walked: Vec<WalkedPath> = walker.starts.par_iter().map(|&start| walker.walk_path(start)).collect();
+        let mut paths = Self { bounds: Some(walker.bounds), ..Self::default() };
+        paths.vpls.reserve(walked.iter().map(|p| p.0.len()).sum());
+        walked.iter().for_each(|p| paths.push(p));
+        paths.finish();
+        paths
     }
-    let epsilon = snapshot.ray_epsilon();
-    let extent = bounds.1 - bounds.0;
-    let across = extent.x * extent.z + extent.x * extent.y + extent.y * extent.z;
-    let guide = |i: usize| guides.and_then(|g| g.get(i));
-    // One power per light, then the emitters' (their open faces), in lumens of the brightest channel.
-    let emitter_power = emitters.iter().map(|e| e.flux.truncate().max_element().max(0.0) * e.normal.w).sum::<f32>();
-    let mut powers: Vec<f32> = lights
-        .iter()
-        .enumerate()
-        .map(|(i, l)| light_power(l, across).max(0.0) * guide(i).map_or(1.0, EmissionGuide::mean))
-        .collect();
-    if !emitters.is_empty() {
-        powers.push(if emitter_power.is_finite() { emitter_power } else { 0.0 });
+
+    /// Paths held.
+    pub fn len(&self) -> usize {
+        self.vpl_offsets.len().saturating_sub(1)
     }
-    let counts = split_paths(settings.paths, &powers);
-    let mut vpls = Vec::with_capacity((settings.paths * settings.bounces) as usize);
-    for (index, light) in lights.iter().enumerate() {
-        let count = counts[index];
-        let stream = SobolStream::new(settings.seed as u64, index as u64);
-        for i in 0..count {
+
+    /// Whether no path is held.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    fn push(&mut self, (vpls, points): &WalkedPath) {
+        self.vpl_offsets.push(self.vpls.len() as u32);
+        self.point_offsets.push(self.points.len() as u32);
+        self.vpls.extend_from_slice(vpls);
+        self.points.extend_from_slice(points);
+    }
+
+    /// Closes the offset tables.
+    fn finish(&mut self) {
+        self.vpl_offsets.push(self.vpls.len() as u32);
+        self.point_offsets.push(self.points.len() as u32);
+    }
+
+    /// Whether path `k` ran a ray through one of `boxes`.
+    fn touches(&self, k: usize, boxes: &[(Vec3, Vec3)]) -> bool {
+        let points = &self.points[self.point_offsets[k] as usize..self.point_offsets[k + 1] as usize];
+        points.windows(2).any(|w| boxes.iter().any(|&b| crate::scene::changes::segment_meets_box(w[0], w[1], b)))
+    }
+
+    /// Brings the paths up to date with a scene in which only what lies in `changed` (world boxes: the
+    /// old and new bounds of the meshes that moved) differs from the scene they were walked in, with the
+    /// same sources, guides and settings: the paths whose rays ran through a box are walked again, the
+    /// others kept. The result is [`walk`](Self::walk)'s. Where that cannot hold (other sources or
+    /// settings, so another number of paths; other scene bounds, which a directional light's beam is
+    /// fitted to) every path is walked.
+    ///
+    /// Returns, per VPL of the result, the index it had before when its path was kept (`None` for the
+    /// VPLs of the paths walked again), and how many paths were walked again; `None` when all were.
+    pub fn rewalk(
+        &mut self,
+        snapshot: &SceneSnapshot,
+        lights: &[SnapshotLight],
+        emitters: &[GpuEmitter],
+        guides: Option<&[EmissionGuide]>,
+        settings: WalkSettings,
+        changed: &[(Vec3, Vec3)],
+    ) -> Option<(Vec<Option<u32>>, usize)> {
+        use rayon::prelude::*;
+        let walker = Walker::new(snapshot, lights, emitters, guides, settings);
+        let Some(walker) = walker.filter(|w| w.starts.len() == self.len() && self.bounds == Some(w.bounds)) else {
+            *self = Self::walk(snapshot, lights, emitters, guides, settings);
+            return None;
+        };
+        // The rays start a ray epsilon off the surfaces their segments are recorded from.
+        let margin = Vec3::splat(4.0 * walker.epsilon);
+        let boxes: Vec<(Vec3, Vec3)> = changed.iter().map(|&(lo, hi)| (lo - margin, hi + margin)).collect();
+        let redo: Vec<usize> = (0..self.len()).into_par_iter().filter(|&k| self.touches(k, &boxes)).collect();
+        let walked: Vec<WalkedPath> = redo.par_iter().map(|&k| walker.walk_path(walker.starts[k])).collect();
+        let old = std::mem::take(self);
+        *self = Self { bounds: old.bounds, ..Self::default() };
+        let mut origin = Vec::with_capacity(old.vpls.len());
+        let mut redone = redo.iter().zip(&walked).peekable();
+        for k in 0..old.len() {
+            if let Some((_, path)) = redone.next_if(|item| *item.0 == k) {
+                self.push(path);
+                origin.extend(std::iter::repeat_n(None, path.0.len()));
+            } else {
+                let (v0, v1) = (old.vpl_offsets[k] as usize, old.vpl_offsets[k + 1] as usize);
+                let (p0, p1) = (old.point_offsets[k] as usize, old.point_offsets[k + 1] as usize);
+                self.vpl_offsets.push(self.vpls.len() as u32);
+                self.point_offsets.push(self.points.len() as u32);
+                self.vpls.extend_from_slice(&old.vpls[v0..v1]);
+                self.points.extend_from_slice(&old.points[p0..p1]);
+                origin.extend((v0..v1).map(|i| Some(i as u32)));
+            }
+        }
+        self.finish();
+        Some((origin, redo.len()))
+    }
+}
+
+/// Where one light path starts: its source (a light's index, or `lights.len()` for the emissive
+/// surfaces) and its index among that source's paths.
+#[derive(Clone, Copy, Debug)]
+struct PathStart {
+    source: usize,
+    index: u32,
+}
+
+/// What every path of one generation shares.
+struct Walker<'a> {
+    snapshot: &'a SceneSnapshot,
+    lights: &'a [SnapshotLight],
+    emitters: &'a [GpuEmitter],
+    guides: Option<&'a [EmissionGuide]>,
+    settings: WalkSettings,
+    bounds: (Vec3, Vec3),
+    epsilon: f32,
+    /// Paths per source: each light's, then the emitters'.
+    counts: Vec<u32>,
+    /// Every path, source after source.
+    starts: Vec<PathStart>,
+}
+
+impl<'a> Walker<'a> {
+    fn new(
+        snapshot: &'a SceneSnapshot,
+        lights: &'a [SnapshotLight],
+        emitters: &'a [GpuEmitter],
+        guides: Option<&'a [EmissionGuide]>,
+        settings: WalkSettings,
+    ) -> Option<Self> {
+        let bounds = snapshot.bounds()?;
+        if (lights.is_empty() && emitters.is_empty()) || settings.paths == 0 || settings.bounces == 0 {
+            return None;
+        }
+        let extent = bounds.1 - bounds.0;
+        let across = extent.x * extent.z + extent.x * extent.y + extent.y * extent.z;
+        let guide = |i: usize| guides.and_then(|g| g.get(i));
+        // One power per light, then the emitters' (their open faces), in lumens of the brightest channel.
+        let emitter_power = emitters.iter().map(|e| e.flux.truncate().max_element().max(0.0) * e.normal.w).sum::<f32>();
+        let mut powers: Vec<f32> = lights
+            .iter()
+            .enumerate()
+            .map(|(i, l)| light_power(l, across).max(0.0) * guide(i).map_or(1.0, EmissionGuide::mean))
+            .collect();
+        if !emitters.is_empty() {
+            powers.push(if emitter_power.is_finite() { emitter_power } else { 0.0 });
+        }
+        let counts = split_paths(settings.paths, &powers);
+        let starts = counts.iter().enumerate().flat_map(|(source, &count)| (0..count).map(move |index| PathStart { source, index })).collect();
+        Some(Self { snapshot, lights, emitters, guides, settings, bounds, epsilon: snapshot.ray_epsilon(), counts, starts })
+    }
+
+    /// One path's VPLs and the points its rays ran between.
+    fn walk_path(&self, PathStart { source, index: i }: PathStart) -> WalkedPath {
+        let (mut vpls, mut points) = (Vec::new(), Vec::new());
+        let count = self.counts[source];
+        let epsilon = self.epsilon;
+        if let Some(light) = self.lights.get(source) {
+            let stream = SobolStream::new(self.settings.seed as u64, source as u64);
             let u = stream.vertex_4d(i, 0);
-            let (u, weight) = guide(index).map_or((Vec2::new(u[0], u[1]), 1.0), |g| g.warp(Vec2::new(u[0], u[1])));
-            let Some(mut emission) = emit(light, u, count, bounds) else {
-                continue;
+            let guide = self.guides.and_then(|g| g.get(source));
+            let (u, weight) = guide.map_or((Vec2::new(u[0], u[1]), 1.0), |g| g.warp(Vec2::new(u[0], u[1])));
+            let Some(mut emission) = emit(light, u, count, self.bounds) else {
+                return (vpls, points);
             };
             emission.flux *= weight;
-            walk(snapshot, Some(light), emission, &stream, i, settings.bounces, epsilon, &mut vpls);
+            self.walk(Some(light), emission, &stream, i, &mut vpls, &mut points);
+            return (vpls, points);
         }
+        let stream = SobolStream::new(self.settings.seed as u64, 0xE417 + self.lights.len() as u64);
+        let m = self.emitters.len();
+        let u = stream.vertex_4d(i, 0);
+        let e = self.emitters[((u[0] * m as f32) as usize).min(m - 1)];
+        // A random one of its open faces (the normal's side when only one is).
+        let sides = e.normal.w;
+        let face = if sides < 1.5 || u[1] < 0.5 { 1.0 } else { -1.0 };
+        let normal = e.normal.truncate() * face;
+        // Each sample is one of M with `π L_e A / M` per open face; this path stands for M / count of
+        // them.
+        let flux = e.flux.truncate() * (sides * m as f32 / count as f32);
+        if normal == Vec3::ZERO || !flux.is_finite() || flux.max_element() <= 0.0 {
+            return (vpls, points);
+        }
+        let position = e.position.truncate() + normal * epsilon;
+        vpls.push(Vpl { position, normal, flux, bounce: 0 });
+        let emission = Emission {
+            origin: position,
+            direction: cosine_hemisphere(normal, Vec2::new(u[2], u[3])),
+            flux,
+        };
+        self.walk(None, emission, &stream, i, &mut vpls, &mut points);
+        (vpls, points)
     }
-    if let Some(&count) = counts.get(lights.len()) {
-        let stream = SobolStream::new(settings.seed as u64, 0xE417 + lights.len() as u64);
-        let m = emitters.len();
-        for i in 0..count {
-            let u = stream.vertex_4d(i, 0);
-            let e = emitters[((u[0] * m as f32) as usize).min(m - 1)];
-            // A random one of its open faces (the normal's side when only one is).
-            let sides = e.normal.w;
-            let face = if sides < 1.5 || u[1] < 0.5 { 1.0 } else { -1.0 };
-            let normal = e.normal.truncate() * face;
-            // Each sample is one of M with `π L_e A / M` per open face; this path stands for M / count of
-            // them.
-            let flux = e.flux.truncate() * (sides * m as f32 / count as f32);
-            if normal == Vec3::ZERO || !flux.is_finite() || flux.max_element() <= 0.0 {
-                continue;
-            }
-            let position = e.position.truncate() + normal * epsilon;
-            vpls.push(Vpl { position, normal, flux, bounce: 0 });
-            let emission = Emission {
-                origin: position,
-                direction: cosine_hemisphere(normal, Vec2::new(u[2], u[3])),
-                flux,
+
+    /// The walk of one path from its emission: a VPL at each surface hit, up to `bounces` hits; its
+    /// origin and the end of every ray into `points`.
+    fn walk(&self, light: Option<&SnapshotLight>, emission: Emission, stream: &SobolStream, index: u32, out: &mut Vec<Vpl>, points: &mut Vec<Vec3>) {
+        let (snapshot, epsilon) = (self.snapshot, self.epsilon);
+        let (mut origin, mut direction, mut flux) = (emission.origin, emission.direction, emission.flux);
+        points.push(origin);
+        for bounce in 1..=self.settings.bounces {
+            let Some(hit) = snapshot.intersect(origin, direction, 0.0, f32::INFINITY) else {
+                // Past the far side of the scene's bounds.
+                let centre = (self.bounds.0 + self.bounds.1) * 0.5;
+                let far = origin.distance(centre) + (self.bounds.1 - self.bounds.0).length();
+                points.push(origin + direction * far);
+                return;
             };
-            walk(snapshot, None, emission, &stream, i, settings.bounces, epsilon, &mut vpls);
+            points.push(origin + direction * hit.t);
+            let surface = snapshot.surface(origin, direction, &hit);
+            if let Some(light) = light.filter(|_| bounce == 1) {
+                flux *= first_hit_falloff(light, hit.t);
+            }
+            // The side the light arrives on.
+            let ng = if surface.geometric_normal.dot(direction) < 0.0 { surface.geometric_normal } else { -surface.geometric_normal };
+            let mut ns = if surface.normal.dot(ng) > 0.0 { surface.normal } else { -surface.normal };
+            if ns.dot(ng) <= 1e-3 {
+                ns = ng;
+            }
+            flux *= surface.diffuse;
+            if flux.max_element() <= 0.0 || !flux.is_finite() {
+                return;
+            }
+            let position = surface.position + ng * epsilon;
+            out.push(Vpl { position, normal: ns, flux, bounce });
+            if bounce == self.settings.bounces {
+                return;
+            }
+            let u = stream.vertex_4d(index, bounce);
+            // Russian roulette by the surface's albedo: a path survives with probability q and carries
+            // flux / q, so every bounce order stays unbiased and the VPLs keep about the same flux each.
+            let survive = surface.diffuse.max_element().min(0.95);
+            if survive <= 0.0 || u[2] >= survive {
+                return;
+            }
+            flux /= survive;
+            let next = cosine_hemisphere(ns, Vec2::new(u[0], u[1]));
+            if next.dot(ng) <= 0.0 {
+                return;
+            }
+            origin = position;
+            direction = next;
         }
     }
-    vpls
 }
 
 /// `paths` split between sources of `powers` in proportion, at least one each (the last takes the
@@ -357,58 +567,6 @@ fn split_paths(paths: u32, powers: &[f32]) -> Vec<u32> {
             count
         })
         .collect()
-}
-
-#[expect(clippy::too_many_arguments, reason = "one light path's state")]
-fn walk(
-    snapshot: &SceneSnapshot,
-    light: Option<&SnapshotLight>,
-    emission: Emission,
-    stream: &SobolStream,
-    index: u32,
-    bounces: u32,
-    epsilon: f32,
-    out: &mut Vec<Vpl>,
-) {
-    let (mut origin, mut direction, mut flux) = (emission.origin, emission.direction, emission.flux);
-    for bounce in 1..=bounces {
-        let Some(hit) = snapshot.intersect(origin, direction, 0.0, f32::INFINITY) else {
-            return;
-        };
-        let surface = snapshot.surface(origin, direction, &hit);
-        if let Some(light) = light.filter(|_| bounce == 1) {
-            flux *= first_hit_falloff(light, hit.t);
-        }
-        // The side the light arrives on.
-        let ng = if surface.geometric_normal.dot(direction) < 0.0 { surface.geometric_normal } else { -surface.geometric_normal };
-        let mut ns = if surface.normal.dot(ng) > 0.0 { surface.normal } else { -surface.normal };
-        if ns.dot(ng) <= 1e-3 {
-            ns = ng;
-        }
-        flux *= surface.diffuse;
-        if flux.max_element() <= 0.0 || !flux.is_finite() {
-            return;
-        }
-        let position = surface.position + ng * epsilon;
-        out.push(Vpl { position, normal: ns, flux, bounce });
-        if bounce == bounces {
-            return;
-        }
-        let u = stream.vertex_4d(index, bounce);
-        // Russian roulette by the surface's albedo: a path survives with probability q and carries
-        // flux / q, so every bounce order stays unbiased and the VPLs keep about the same flux each.
-        let survive = surface.diffuse.max_element().min(0.95);
-        if survive <= 0.0 || u[2] >= survive {
-            return;
-        }
-        flux /= survive;
-        let next = cosine_hemisphere(ns, Vec2::new(u[0], u[1]));
-        if next.dot(ng) <= 0.0 {
-            return;
-        }
-        origin = position;
-        direction = next;
-    }
 }
 
 /// One point of the imperfect shadow maps' point set: a surface sample.
@@ -531,38 +689,77 @@ pub fn traced_shadow_maps(snapshot: &SceneSnapshot, vpls: &[Vpl], side: u32) -> 
     use rayon::prelude::*;
     let texels = (side * side) as usize;
     let mut maps = vec![0u32; vpls.len() * texels];
-    let epsilon = snapshot.ray_epsilon();
     maps.par_chunks_mut(texels).zip(vpls.par_iter()).for_each(|(map, vpl)| {
-        for y in 0..side {
-            for x in 0..side {
-                let Some(direction) = paraboloid_direction(vpl.normal, side, x, y) else {
-                    continue;
-                };
-                // Nothing in this direction: the ray left the scene, and nothing further needs a shadow.
-                let Some(first) = snapshot.intersect(vpl.position, direction, 0.0, f32::INFINITY) else {
-                    continue;
-                };
-                // Only the faces' orientation is needed: the geometric normals, not the shaded surfaces.
-                let cos_first = snapshot.geometric_normal(first.triangle).dot(direction);
-                let second = snapshot.intersect(vpl.position, direction, first.t + epsilon, f32::INFINITY);
-                let exit = second.as_ref().filter(|s| {
-                    // Entered at the first surface and left at the second: a solid's far side.
-                    cos_first < 0.0 && snapshot.geometric_normal(s.triangle).dot(direction) > 0.0
-                });
-                let far = match (exit, second) {
-                    (Some(exit), _) => exit.t,
-                    (None, second) => {
-                        let sheet = sheet_depth(first.t, cos_first.abs(), side) + epsilon;
-                        second.map_or(sheet, |s| s.t.min(sheet))
-                    }
-                };
-                if far > 0.0 && far.is_finite() {
-                    map[(y * side + x) as usize] = encode_traced_texel(far, first.t);
-                }
-            }
+        for (t, texel) in map.iter_mut().enumerate() {
+            *texel = traced_texel(snapshot, vpl, side, t as u32 % side, t as u32 / side);
         }
     });
     maps
+}
+
+/// [`traced_shadow_maps`] of `vpls` in a scene in which only what lies in `changed` (world boxes: the
+/// old and new bounds of what moved) differs from the scene `old` was traced in for the VPLs `origin`
+/// names (per VPL, its index in `old`'s VPLs, or `None` for a VPL that is new): a kept VPL keeps its
+/// texels whose ray does not pass through a box (their first and second surfaces are where they were)
+/// and traces the others; a new VPL traces all. The result is [`traced_shadow_maps`]'. Returns the
+/// maps and the texels traced.
+pub fn traced_shadow_maps_update(snapshot: &SceneSnapshot, vpls: &[Vpl], side: u32, old: &[u32], origin: &[Option<u32>], changed: &[(Vec3, Vec3)]) -> (Vec<u32>, usize) {
+    use rayon::prelude::*;
+    let texels = (side * side) as usize;
+    let margin = Vec3::splat(4.0 * snapshot.ray_epsilon());
+    let boxes: Vec<(Vec3, Vec3)> = changed.iter().map(|&(lo, hi)| (lo - margin, hi + margin)).collect();
+    let mut maps = vec![0u32; vpls.len() * texels];
+    let traced: usize = maps
+        .par_chunks_mut(texels)
+        .zip(vpls.par_iter())
+        .zip(origin.par_iter())
+        .map(|((map, vpl), origin)| {
+            let kept = origin.and_then(|o| old.get(o as usize * texels..(o as usize + 1) * texels));
+            let mut traced = 0;
+            for (t, texel) in map.iter_mut().enumerate() {
+                let (x, y) = (t as u32 % side, t as u32 / side);
+                if let Some(kept) = kept {
+                    let through = paraboloid_direction(vpl.normal, side, x, y)
+                        .is_some_and(|d| boxes.iter().any(|&b| crate::scene::changes::ray_meets_box(vpl.position, d, f32::INFINITY, b)));
+                    if !through {
+                        *texel = kept[t];
+                        continue;
+                    }
+                }
+                *texel = traced_texel(snapshot, vpl, side, x, y);
+                traced += 1;
+            }
+            traced
+        })
+        .sum();
+    (maps, traced)
+}
+
+/// One texel of a VPL's traced shadow map ([`traced_shadow_maps`]).
+fn traced_texel(snapshot: &SceneSnapshot, vpl: &Vpl, side: u32, x: u32, y: u32) -> u32 {
+    let epsilon = snapshot.ray_epsilon();
+    let Some(direction) = paraboloid_direction(vpl.normal, side, x, y) else {
+        return 0;
+    };
+    // Nothing in this direction: the ray left the scene, and nothing further needs a shadow.
+    let Some(first) = snapshot.intersect(vpl.position, direction, 0.0, f32::INFINITY) else {
+        return 0;
+    };
+    // Only the faces' orientation is needed: the geometric normals, not the shaded surfaces.
+    let cos_first = snapshot.geometric_normal(first.triangle).dot(direction);
+    let second = snapshot.intersect(vpl.position, direction, first.t + epsilon, f32::INFINITY);
+    let exit = second.as_ref().filter(|s| {
+        // Entered at the first surface and left at the second: a solid's far side.
+        cos_first < 0.0 && snapshot.geometric_normal(s.triangle).dot(direction) > 0.0
+    });
+    let far = match (exit, second) {
+        (Some(exit), _) => exit.t,
+        (None, second) => {
+            let sheet = sheet_depth(first.t, cos_first.abs(), side) + epsilon;
+            second.map_or(sheet, |s| s.t.min(sheet))
+        }
+    };
+    if far > 0.0 && far.is_finite() { encode_traced_texel(far, first.t) } else { 0 }
 }
 
 /// A traced shadow map's texel: the distance to the far side of the first occluder in the low half and
@@ -831,6 +1028,52 @@ mod tests {
         let mut s = SceneSnapshot::default();
         s.set_geometry(triangles, vec![material(albedo)]);
         s
+    }
+
+    /// A box moved inside a lit room: only the light paths whose rays ran near its old or new place are
+    /// walked again, only the shadow-map texels whose rays pass there are traced, and the VPLs and maps
+    /// are those of a walk from scratch.
+    #[test]
+    fn a_moved_box_rewalks_only_the_paths_and_texels_near_it_and_gives_the_full_result() {
+        let mut scene = snapshot(closed_box(2.0), 0.7);
+        let cube = crate::scene::MeshGeometry::new(
+            crate::scene::mesh_local_triangles(&bevy::prelude::Mesh::from(bevy::prelude::Cuboid::new(0.8, 0.8, 0.8))).unwrap(),
+        );
+        let cube = std::sync::Arc::new(cube);
+        scene.set_instance(100, cube, bevy::math::Affine3A::from_translation(Vec3::new(-1.0, -1.6, 0.6)), 0);
+        scene.commit();
+        let lights = [SnapshotLight::Point { position: Vec3::new(0.5, 1.5, -0.4), intensity: Vec3::splat(500.0), inverse_range_squared: 0.0 }];
+        let settings = WalkSettings { paths: 400, bounces: 4, seed: 3 };
+        let side = 16;
+        let mut paths = VplPaths::walk(&scene, &lights, &[], None, settings);
+        let maps = traced_shadow_maps(&scene, &paths.vpls, side);
+        let still = paths.clone();
+
+        let before = scene.instance(100).unwrap().bounds;
+        scene.set_instance_transform(100, bevy::math::Affine3A::from_translation(Vec3::new(-0.5, -1.6, 0.6)));
+        scene.commit();
+        let after = scene.instance(100).unwrap().bounds;
+        let changed = [before, after];
+        let (origin, walked) = paths.rewalk(&scene, &lights, &[], None, settings, &changed).expect("the same paths, so kept where they can be");
+        let full = VplPaths::walk(&scene, &lights, &[], None, settings);
+        let differ = (0..full.len()).filter(|&k| full.vpls[full.vpl_offsets[k] as usize..full.vpl_offsets[k + 1] as usize] != still.vpls[still.vpl_offsets[k] as usize..still.vpl_offsets[k + 1] as usize]).count();
+        assert!(differ >= 10, "the move changes {differ} paths: too few to tell");
+        assert!(walked > 0 && walked < paths.len() / 2, "{walked} of {} paths walked again", paths.len());
+        assert_eq!(paths, full, "the paths kept and walked again are the walk from scratch");
+        assert_eq!(origin.len(), paths.vpls.len());
+
+        let (updated, traced) = traced_shadow_maps_update(&scene, &paths.vpls, side, &maps, &origin, &changed);
+        let total = paths.vpls.len() * (side * side) as usize;
+        assert!(traced > 0 && traced < total / 2, "{traced} of {total} texels traced");
+        let fresh = traced_shadow_maps(&scene, &paths.vpls, side);
+        assert_eq!(updated.len(), fresh.len());
+        let wrong = updated.iter().zip(&fresh).filter(|(a, b)| a != b).count();
+        assert_eq!(wrong, 0, "texels that differ from the maps traced from scratch");
+
+        // Other settings cannot keep any path.
+        let more = WalkSettings { paths: 500, ..settings };
+        assert!(paths.rewalk(&scene, &lights, &[], None, more, &changed).is_none());
+        assert_eq!(paths, VplPaths::walk(&scene, &lights, &[], None, more));
     }
 
     /// A spot light at the centre of a floor-only scene: every path hits the floor, and the bounce-1 VPLs'

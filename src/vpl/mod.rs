@@ -106,6 +106,8 @@
 //!
 //! Per pass at 256² (differences of frame times): the gather about 0.3 ms per VPL, each SSBC step about
 //! 90 ms, the shadow maps only when the VPLs change. No GPU was available: these are CPU-rasteriser times.
+//! The walk after a sphere's move in `dynamic` (128², in the background): 5 of 160 paths walked again and
+//! 40 000 of 478 000 traced texels, 33–37 ms against 145–149 ms for a walk from scratch.
 //!
 //! # Known issues
 //! * Screen space sees only what the camera sees: SSBC cannot return the energy clamped near surfaces
@@ -119,10 +121,16 @@
 //! * A room lit only through a door gets few VPLs of its own (most land in the lit room): room_136's
 //!   camera room gets 0.70 of its light (`docs/unseen_rooms.md`); with 1 000 paths instead of 160, 0.85.
 //!   room_2's camera room (sunlit next door) gets 1.47 of its light: not investigated.
-//! * Any change of a GI light or of the geometry regenerates every VPL and every shadow map (the walks are
-//!   cheap and off the main thread; the splats cost VPLs × `ism_points`); a moving mesh also rebuilds
-//!   the snapshot. A new set replaces the last at once, without a blend (consecutive sets of the same
-//!   seed differ little).
+//! * Any change of a GI light, of the emissive surfaces, of the settings or of which meshes exist
+//!   regenerates every VPL and every shadow map (off the main thread; the splats cost VPLs ×
+//!   `ism_points`). When meshes only move, the walk keeps every path whose rays did not run through
+//!   their old or new bounds and walks the others again (each path draws from its own index of its
+//!   light's Sobol stream, so a kept path is the path a new walk would make), and the traced maps keep
+//!   the texels of kept VPLs whose rays do not pass through those bounds
+//!   ([`generate::VplPaths::rewalk`], [`generate::traced_shadow_maps_update`]; the same VPLs and maps
+//!   as from scratch, checked by a unit test). A sun whose guides change with the move (a pilot ray's
+//!   surface turns from or to the cameras) still regenerates all. A new set replaces the last at once,
+//!   without a blend (consecutive sets of the same seed differ little).
 //! * A sheet's (a quad without a back) depth in the traced maps is its own plus the depth it spans over the
 //!   gather's texels: a receiver just behind a sheet at a grazing angle can still be lit.
 
@@ -135,7 +143,7 @@ mod settings;
 use bevy::app::SubApp;
 use bevy::prelude::*;
 
-pub use extract::VplSet;
+pub use extract::{VplRedone, VplSet};
 pub use generate::Vpl;
 pub use prepare::{GpuVpl, VplUniform};
 pub use settings::{VplSettings, VplVisibility};
