@@ -194,11 +194,26 @@ pub struct CpuJob<S, C, R> {
     /// `None` while a task holds it (or before the first).
     core: Option<Box<C>>,
     job: BackgroundJob<JobKey<S>, (Box<C>, R)>,
+    /// The running task's [`Superseded`] flag.
+    superseded: Superseded,
+}
+
+/// Set by the main thread ([`CpuJob::supersede_if_stale`]) when the inputs changed again while a task
+/// runs: the task may then stop after a stage whose work the next task keeps, instead of finishing a
+/// result that is already stale.
+#[derive(Clone, Debug, Default)]
+pub struct Superseded(Arc<std::sync::atomic::AtomicBool>);
+
+impl Superseded {
+    /// Whether newer inputs wait for the task's end.
+    pub fn is_set(&self) -> bool {
+        self.0.load(std::sync::atomic::Ordering::Relaxed)
+    }
 }
 
 impl<S, C, R> Default for CpuJob<S, C, R> {
     fn default() -> Self {
-        Self { core: None, job: BackgroundJob::default() }
+        Self { core: None, job: BackgroundJob::default(), superseded: Superseded::default() }
     }
 }
 
@@ -230,12 +245,26 @@ impl<S: Clone + PartialEq + Send + Sync + 'static, C: Default + Send + 'static, 
     /// Starts `work` on the kept state for the inputs `key`, on the background pool. Callers start only
     /// when [`wants`](Self::wants) says so.
     pub fn start(&mut self, key: &JobKey<S>, work: impl FnOnce(&mut C, &JobKey<S>) -> R + Send + 'static) {
+        self.start_supersedable(key, move |core, key, _| work(core, key));
+    }
+
+    /// [`start`](Self::start), with the task's [`Superseded`] flag for `work` to read.
+    pub fn start_supersedable(&mut self, key: &JobKey<S>, work: impl FnOnce(&mut C, &JobKey<S>, &Superseded) -> R + Send + 'static) {
         let mut core = self.core.take().unwrap_or_default();
         let task_key = key.clone();
+        self.superseded = Superseded::default();
+        let superseded = self.superseded.clone();
         self.job.start(key.clone(), move || {
-            let result = work(&mut core, &task_key);
+            let result = work(&mut core, &task_key, &superseded);
             (core, result)
         });
+    }
+
+    /// Tells the running task, if it was started from other inputs than `key`, that it is superseded.
+    pub fn supersede_if_stale(&self, key: &JobKey<S>) {
+        if self.job.running.as_ref().is_some_and(|(k, _)| k != key) {
+            self.superseded.0.store(true, std::sync::atomic::Ordering::Relaxed);
+        }
     }
 
     /// Whether the result shown is not yet that of `key`: a task runs, or the last one had other inputs.

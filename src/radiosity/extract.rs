@@ -71,6 +71,10 @@ pub enum RadiosityWork {
     Rebuild,
     /// New elements whose links would need more memory than allowed: nothing solved, no light.
     OverBudget,
+    /// The first solve of a move made the links kept among the still meshes, and the meshes had moved on
+    /// meanwhile: it stopped there (no push-down, no light) and the next solve, from the newest poses,
+    /// reuses those links instead of finishing a solution that was already stale.
+    Superseded,
 }
 
 /// The solver and what it was built from: the state a background solve takes and hands back.
@@ -94,6 +98,9 @@ pub struct RadiosityCore {
     warned_budget: Option<(u64, u64)>,
     /// MiB of links the last solve would have needed, when that was over the budget.
     over_budget_mib: Option<u64>,
+    /// The last solve stopped after its links ([`RadiosityWork::Superseded`]): the next one finishes
+    /// whatever happens meanwhile, so that meshes that keep starting to move cannot hold the light back.
+    superseded_last: bool,
 }
 
 /// The main-world state: the solver (in a background task while one runs), the running solve and the
@@ -234,7 +241,7 @@ pub(super) fn update_radiosity(
             nodes,
             times,
             over_budget_mib,
-            solves: activity.solves + (work != RadiosityWork::Reused) as u64,
+            solves: activity.solves + !matches!(work, RadiosityWork::Reused | RadiosityWork::Superseded) as u64,
             kept_links_derived: activity.kept_links_derived + times.kept_bins_relinked.is_some() as u64,
             kept_links_made: activity.kept_links_made + times.kept_links_made as u64,
             last: work,
@@ -249,7 +256,7 @@ pub(super) fn update_radiosity(
                 (&DIAGNOSTIC_ILLUMINATION, times.illumination_ms),
             ],
         );
-        if work != RadiosityWork::Reused {
+        if !matches!(work, RadiosityWork::Reused | RadiosityWork::Superseded) {
             // Blend from what is on screen when the elements are the same ones; otherwise show it whole.
             let from = state.shown.as_ref().filter(|s| s.to.len() == gathered.len()).map(|s| s.current());
             let blend = if from.is_some() { Blend::start() } else { Blend::DONE };
@@ -258,11 +265,13 @@ pub(super) fn update_radiosity(
         }
     }
 
-    // 2. The scene or the settings changed since the last solve began: start the next one.
+    // 2. The scene or the settings changed since the last solve began: start the next one (a solve
+    // still running on older inputs is told, see `RadiosityWork::Superseded`).
+    state.job.supersede_if_stale(&key);
     if state.job.wants(&key) {
         let snapshot = snapshot.clone();
-        state.job.start(&key, move |core, key| {
-            let (work, times, gathered) = solve(core, &snapshot, key);
+        state.job.start_supersedable(&key, move |core, key, superseded| {
+            let (work, times, gathered) = solve(core, &snapshot, key, superseded);
             debug!(
                 "Radiosity solve ({work:?}): elements {:.1} ms, links {:.1} ms ({} bins; kept links derived by relinking {:?} bins), \
                  push-down {:.1} ms ({} leaves), light {:.1} ms; full links kept {:.1} MiB",
@@ -352,13 +361,14 @@ impl Shown {
 /// One solve, on a background task: elements, links and lighting, each only when what it depends on
 /// changed since `core` last solved. Returns what it redid, the stage times and the gathered irradiance
 /// per element (empty when nothing was redone).
-fn solve(core: &mut RadiosityCore, snapshot: &SceneSnapshot, key: &SolveKey) -> (RadiosityWork, StageTimes, Vec<Vec3>) {
+fn solve(core: &mut RadiosityCore, snapshot: &SceneSnapshot, key: &SolveKey, superseded: &background::Superseded) -> (RadiosityWork, StageTimes, Vec<Vec3>) {
     let settings = &key.settings;
     let exposure = key.scene.exposure();
     let params = settings.params();
     let diagonal = snapshot.bounds().map_or(1.0, |(lo, hi)| (hi - lo).length()).max(1e-6);
     let mut work = RadiosityWork::Reused;
     let mut times = StageTimes::default();
+    let may_stop = !std::mem::take(&mut core.superseded_last);
 
     // 1. Elements: rebuilt on a new layout or element size, moved with instances otherwise.
     let elements_key = Some((snapshot.layout_generation, settings.element_size.to_bits(), key.scene.exposure));
@@ -437,6 +447,18 @@ fn solve(core: &mut RadiosityCore, snapshot: &SceneSnapshot, key: &SolveKey) -> 
             (Some(ranges), RadiosityWork::Refit) if keep => {
                 let moving = core.solver.moving_segments(|e| ranges.iter().any(|r| r.contains(&e)));
                 core.solver.relink(&params, &moving);
+                // The kept links were derived or made (a move's first solve, seconds with many meshes)
+                // and the meshes moved on meanwhile: the push-down and the light of these poses would
+                // be stale on arrival. Stop here; the links stay stale (`links_key` is not set), so the
+                // next solve relinks the moving meshes at their newest poses over the kept links, and
+                // its push-down covers what this relink changed.
+                let solver_times = core.solver.times;
+                let derived = solver_times.kept_bins_relinked.is_some() || solver_times.kept_links_made;
+                if derived && superseded.is_set() && may_stop {
+                    core.superseded_last = true;
+                    let times = StageTimes { update_elements_ms: times.update_elements_ms, ..solver_times };
+                    return (RadiosityWork::Superseded, times, Vec::new());
+                }
             }
             // New elements (a new solver), new bins or threshold: every link anew.
             _ => core.solver.create_links(&params),

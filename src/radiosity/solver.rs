@@ -2038,6 +2038,17 @@ mod tests {
     }
 
     fn relinking_gives_the_links_made_from_scratch(push_first: bool) {
+        relinking_gives_the_links_made_from_scratch_with(push_first, false);
+    }
+
+    /// The first move's solve superseded after its links (no push-down, no light: the meshes moved on),
+    /// the next relink and push-down make up for it.
+    #[test]
+    fn a_first_move_superseded_after_its_links_gives_the_solution_made_from_scratch() {
+        relinking_gives_the_links_made_from_scratch_with(true, true);
+    }
+
+    fn relinking_gives_the_links_made_from_scratch_with(push_first: bool, supersede_first: bool) {
         let mut patches = closed_box(0.7, 0.0);
         patches[0] = RadiosityPatch { triangles: square(-Vec3::X, Vec3::X, 2.0, Vec3::splat(0.7), Vec3::ONE) };
         // A second closed box beside it, lit by its own glowing wall: it never sees the plate.
@@ -2092,6 +2103,13 @@ mod tests {
                 assert_eq!(kept.times.kept_bins_relinked, None, "step {step}: the kept links are reused");
             }
             let kept_links = kept.links.clone();
+            if step == 1 && supersede_first {
+                let mut fresh = RadiositySolver::new(elements.clone());
+                fresh.update_elements(&positions, &normals);
+                fresh.create_links(&params);
+                assert_eq!(kept.times.links, fresh.times.links, "superseded step: linked bins");
+                continue;
+            }
             kept.refine_and_push();
             if step == 1 && push_first {
                 // The second box never sees the plate: its leaves keep what the still scene pushed down.
