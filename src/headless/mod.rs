@@ -649,7 +649,8 @@ fn drive(
                             "leaves_pushed": t.leaves_pushed, "kept_bins_relinked": t.kept_bins_relinked,
                             "over_budget_mib": radiosity.over_budget_mib, "last_work": format!("{:?}", radiosity.last),
                             "solves": radiosity.solves, "kept_links_derived": radiosity.kept_links_derived,
-                            "kept_links_made": radiosity.kept_links_made, "bounces_run": t.bounces_run, "busy": radiosity.busy,
+                            "kept_links_made": radiosity.kept_links_made, "superseded": radiosity.superseded,
+                            "bounces_run": t.bounces_run, "busy": radiosity.busy,
                             "update_elements_ms": t.update_elements_ms, "create_links_ms": t.create_links_ms,
                             "refine_push_ms": t.refine_push_ms, "illumination_ms": t.illumination_ms }),
                 );

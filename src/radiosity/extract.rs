@@ -42,6 +42,9 @@ pub struct RadiosityActivity {
     /// full linking's cost).
     pub kept_links_derived: u64,
     pub kept_links_made: u64,
+    /// Solves that stopped after deriving or making those links because the meshes had moved on
+    /// ([`RadiosityWork::Superseded`]).
+    pub superseded: u64,
     /// What the last finished solve redid.
     pub last: RadiosityWork,
     /// Whether the light shown is not yet the solution of the scene as it is now: a solve is running
@@ -244,6 +247,7 @@ pub(super) fn update_radiosity(
             solves: activity.solves + !matches!(work, RadiosityWork::Reused | RadiosityWork::Superseded) as u64,
             kept_links_derived: activity.kept_links_derived + times.kept_bins_relinked.is_some() as u64,
             kept_links_made: activity.kept_links_made + times.kept_links_made as u64,
+            superseded: activity.superseded + (work == RadiosityWork::Superseded) as u64,
             last: work,
             ..activity.clone()
         };

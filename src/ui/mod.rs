@@ -108,6 +108,7 @@ fn inspector_ui(
     radiosity: Option<Res<RadiosityActivity>>,
     photon_grid: Option<Res<PhotonGridActivity>>,
     status: Option<Res<crate::method::GiMethodStatus>>,
+    vpl_set: Option<Res<crate::vpl::VplSet>>,
 ) -> Result {
     let label = |entity: Entity, name: Option<&Name>| name.map_or_else(|| format!("{entity}"), |n| n.to_string());
     let ctx = contexts.ctx_mut()?;
@@ -157,16 +158,21 @@ fn inspector_ui(
                     );
                 }
                 match gi.method {
-                    GiMethod::Vpl => match vpl {
-                        Some(mut settings) => {
-                            ui.push_id(entity, |ui| vpl_ui(ui, &mut settings));
-                        }
-                        None => {
-                            if ui.button("tune VPL settings (adds VplSettings::MEDIUM)").clicked() {
-                                commands.entity(entity).insert(VplSettings::MEDIUM);
+                    GiMethod::Vpl => {
+                        match vpl {
+                            Some(mut settings) => {
+                                ui.push_id(entity, |ui| vpl_ui(ui, &mut settings));
+                            }
+                            None => {
+                                if ui.button("tune VPL settings (adds VplSettings::MEDIUM)").clicked() {
+                                    commands.entity(entity).insert(VplSettings::MEDIUM);
+                                }
                             }
                         }
-                    },
+                        if let Some(set) = &vpl_set {
+                            ui.label(vpl_set_line(set));
+                        }
+                    }
                     GiMethod::RsmGather => match rsm_gather {
                         Some(mut settings) => {
                             ui.push_id(entity, |ui| rsm_gather_ui(ui, &mut settings));
@@ -424,6 +430,21 @@ pub fn radiosity_ui(ui: &mut egui::Ui, settings: &mut Mut<RadiositySettings>) {
     commit(v, settings);
 }
 
+/// The VPL set in use and what its last walk redid.
+pub fn vpl_set_line(set: &crate::vpl::VplSet) -> String {
+    let r = set.last_redone;
+    format!(
+        "{} VPLs; last walk {:.0} ms in the background: {} of {} light paths walked, {} of {} shadow-map texels traced{}",
+        set.vpls.len(),
+        set.last_walk_ms,
+        r.paths,
+        r.paths_total,
+        r.texels,
+        r.texels_total,
+        if set.busy { "; the next is due" } else { "" }
+    )
+}
+
 /// What the last radiosity solve did: its elements and the paper's Table 1 stages.
 fn radiosity_activity_ui(ui: &mut egui::Ui, a: &RadiosityActivity) {
     let t = &a.times;
@@ -442,8 +463,8 @@ fn radiosity_activity_ui(ui: &mut egui::Ui, a: &RadiosityActivity) {
             (None, false) => String::new(),
         };
         ui.label(format!(
-            "links kept among the still meshes: derived {} times, made anew {} times{last}",
-            a.kept_links_derived, a.kept_links_made
+            "links kept among the still meshes: derived {} times, made anew {} times{last}; {} solves stopped after them (the meshes had moved on)",
+            a.kept_links_derived, a.kept_links_made, a.superseded
         ));
     }
 }
@@ -612,5 +633,18 @@ mod tests {
         assert_eq!(edit(77, &mut world), 0);
         assert_eq!(edit(78, &mut world), 1);
         assert_eq!(world.get::<RsmGatherSettings>(entity).unwrap().samples, 78);
+    }
+
+    #[test]
+    fn the_vpl_line_says_what_the_last_walk_redid() {
+        let set = crate::vpl::VplSet {
+            last_walk_ms: 34.6,
+            last_redone: crate::vpl::VplRedone { paths: 5, paths_total: 160, texels: 40_000, texels_total: 478_208 },
+            ..default()
+        };
+        let line = vpl_set_line(&set);
+        assert!(line.contains("35 ms") && line.contains("5 of 160 light paths") && line.contains("40000 of 478208"), "{line}");
+        assert!(!line.contains("due"), "{line}");
+        assert!(vpl_set_line(&crate::vpl::VplSet { busy: true, ..default() }).contains("the next is due"));
     }
 }
