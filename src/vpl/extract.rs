@@ -96,7 +96,6 @@ struct WalkCaches {
     /// The last light paths (with the records [`VplPaths::rewalk`] reads) and their VPLs, and the
     /// instances and layout generation they were walked in.
     paths: VplPaths,
-    vpls: Arc<Vec<Vpl>>,
     instances: Vec<InstanceRecord<()>>,
     layout: u64,
     /// The last traced shadow maps, and what they were made for (the VPLs' key and the side).
@@ -310,23 +309,17 @@ fn walk_scene(
     let mut origin = None;
     if caches.vpl_key.as_ref() != Some(&vpl_key) {
         let guides = Some(vpl_key.guides.as_slice());
-        origin = match &moved {
+        let rewalked = match &moved {
             Some(boxes) => caches.paths.rewalk(snapshot, &sources, emitters, guides, *walk, boxes),
             None => {
                 caches.paths = VplPaths::walk(snapshot, &sources, emitters, guides, *walk);
                 None
             }
-        }
-        .map(|(origin, walked)| {
-            redone.paths = walked;
-            origin
-        });
-        if origin.is_none() {
-            redone.paths = caches.paths.len();
-        }
+        };
+        redone.paths = rewalked.as_ref().map_or(caches.paths.len(), |(_, walked)| *walked);
         redone.paths_total = caches.paths.len();
-        caches.vpls = Arc::new(caches.paths.vpls.clone());
-        vpls = Some((caches.vpls.clone(), surface_area(snapshot)));
+        origin = rewalked.map(|(origin, _)| origin);
+        vpls = Some((Arc::new(caches.paths.vpls.clone()), surface_area(snapshot)));
         caches.vpl_key = Some(vpl_key.clone());
     }
     (caches.instances, caches.layout) = (instances, key.layout);
@@ -334,19 +327,19 @@ fn walk_scene(
     let mut maps = None;
     if caches.maps_key != maps_key {
         caches.maps = key.maps.map(|side| {
-            let texels = caches.vpls.len() * (side * side) as usize;
+            let texels = caches.paths.vpls.len() * (side * side) as usize;
             redone.texels_total = texels;
             // The last maps were traced for the VPLs this walk started from, at this side.
             let previous = caches.maps.as_ref().filter(|_| old_maps_side == Some(side));
             Arc::new(match (previous, &origin, &moved) {
                 (Some(old), Some(origin), Some(boxes)) => {
-                    let (maps, traced) = traced_shadow_maps_update(snapshot, &caches.vpls, side, old, origin, boxes);
+                    let (maps, traced) = traced_shadow_maps_update(snapshot, &caches.paths.vpls, side, old, origin, boxes);
                     redone.texels = traced;
                     maps
                 }
                 _ => {
                     redone.texels = texels;
-                    traced_shadow_maps(snapshot, &caches.vpls, side)
+                    traced_shadow_maps(snapshot, &caches.paths.vpls, side)
                 }
             })
         });
