@@ -1142,23 +1142,34 @@ impl RadiositySolver {
                 let x = nodes[leaf as usize].position;
                 let n = nodes[leaf as usize].normal;
                 out.copy_from_slice(&links[leaf as usize * per_node..(leaf as usize + 1) * per_node]);
+                // The ancestors' senders, each once, in the order they are met (nearest ancestor
+                // first, bin by bin): a sender fills many bins of a node and is linked from several
+                // ancestors, and its rasterisation from `x` does not depend on which (a large wall
+                // element seen by every level above a small sphere's leaf was rasterised hundreds of
+                // times per leaf). The first-met order keeps the same sender on equal depths.
+                let mut senders: Vec<(u32, u32)> = Vec::new();
                 let mut ancestor = nodes[leaf as usize].parent;
                 while ancestor != u32::MAX {
                     for link in &links[ancestor as usize * per_node..(ancestor as usize + 1) * per_node] {
-                        if link.node == NO_LINK {
-                            continue;
+                        if link.node != NO_LINK {
+                            senders.push((link.node, senders.len() as u32));
                         }
-                        sender_bins(nodes, surface, &nodes[link.node as usize], x, bins, |bin, d, depth| {
-                            if n.dot(d) <= 0.0 {
-                                return;
-                            }
-                            let slot = &mut out[bin as usize];
-                            if depth < slot.distance {
-                                (slot.node, slot.distance) = (link.node, depth);
-                            }
-                        });
                     }
                     ancestor = nodes[ancestor as usize].parent;
+                }
+                senders.sort_unstable();
+                senders.dedup_by_key(|s| s.0);
+                senders.sort_unstable_by_key(|s| s.1);
+                for &(sender, _) in &senders {
+                    sender_bins(nodes, surface, &nodes[sender as usize], x, bins, |bin, d, depth| {
+                        if n.dot(d) <= 0.0 {
+                            return;
+                        }
+                        let slot = &mut out[bin as usize];
+                        if depth < slot.distance {
+                            (slot.node, slot.distance) = (sender, depth);
+                        }
+                    });
                 }
                 fill_holes(out, bins, n);
                 1
