@@ -260,7 +260,13 @@ pub(super) fn update_radiosity(
                 (&DIAGNOSTIC_ILLUMINATION, times.illumination_ms),
             ],
         );
-        if !matches!(work, RadiosityWork::Reused | RadiosityWork::Superseded) {
+        if work == RadiosityWork::OverBudget {
+            // Not solved: no light, and nothing to redraw each frame while meshes move (a scene this
+            // large rebuilt its elements' zero light on the main thread every frame, 1.7 ms).
+            if state.shown.take().is_some() {
+                *output = RadiosityOutput { generation: output.generation + 1, ..default() };
+            }
+        } else if !matches!(work, RadiosityWork::Reused | RadiosityWork::Superseded) {
             // Blend from what is on screen when the elements are the same ones; otherwise show it whole.
             let from = state.shown.as_ref().filter(|s| s.to.len() == gathered.len()).map(|s| s.current());
             let blend = if from.is_some() { Blend::start() } else { Blend::DONE };
@@ -328,7 +334,8 @@ pub(super) fn update_radiosity(
         }
     }
     activity.busy = state.job.is_stale(&key) || state.shown.as_ref().is_some_and(|s| !s.blend.is_done());
-    activity.ready = state.shown.is_some();
+    // A scene over the link budget has its (empty) result too.
+    activity.ready = state.shown.is_some() || activity.over_budget_mib.is_some();
     params.status.set_background(GiMethod::Radiosity, activity.ready, activity.busy, activity.frames_since_start, activity.solves);
     params.cost.radiosity_ms = frame_start.elapsed().as_secs_f32() * 1e3;
 }
@@ -439,7 +446,7 @@ fn solve(core: &mut RadiosityCore, snapshot: &SceneSnapshot, key: &SolveKey, sup
         core.solver.forget_links();
         (core.links_key, core.lighting_key) = (None, None);
         core.over_budget_mib = Some(needed >> 20);
-        return (RadiosityWork::OverBudget, times, vec![Vec3::ZERO; core.solver.elements.len()]);
+        return (RadiosityWork::OverBudget, times, Vec::new());
     }
     let links_key = Some((snapshot.geometry_generation, settings.bins, settings.subdivision_threshold.to_bits()));
     if core.links_key != links_key {
