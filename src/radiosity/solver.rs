@@ -1544,6 +1544,10 @@ impl DualCells {
 /// 0.48 block RMSE against 0.159 and 0.35 at 1), `sky_room` and `cellar` a little better.
 const CENTRE_RAY_SPAN: f32 = 1.0;
 
+/// 64-bit words of a bit per bin kept on the stack: enough for the most bins the settings allow
+/// (`6 × 24²`, [`RadiositySettings::bins`](super::RadiositySettings::bins)); more go on the heap.
+const STACK_BIN_WORDS: usize = (6 * 24 * 24usize).div_ceil(64);
+
 /// The bins that sender `y` covers seen from `from`, each with the vector from `from` to where it is seen
 /// and its depth along the bin's ray: `f(bin, d, depth)`. A leaf spanning a bin or more covers the bins
 /// of its centre and those whose *centre ray* meets its dual cell, as a rasteriser samples pixel centres: a bin the leaf's
@@ -1555,14 +1559,34 @@ fn sender_bins(nodes: &[Node], surface: Surface, y: &Node, from: Vec3, bins: &Cu
     let r2 = d.length_squared().max(1e-18);
     let spanned = y.area / r2 / bins.solid_angle(bins.bin(d));
     if y.is_leaf() && spanned >= CENTRE_RAY_SPAN && !surface.cells.of(y.element).is_empty() {
-        let mut candidates: Vec<u32> = Vec::with_capacity(64);
+        // The bins the samples fall in, as bits (ascending bin order, each once; no allocation).
+        let mut stack = [0u64; STACK_BIN_WORDS];
+        let mut heap = Vec::new();
+        let needed = (bins.count() as usize).div_ceil(64);
+        let words: &mut [u64] = if needed <= STACK_BIN_WORDS {
+            &mut stack[..needed]
+        } else {
+            heap.resize(needed, 0);
+            &mut heap
+        };
+        let (mut first, mut last) = (usize::MAX, 0usize);
         sender_samples(nodes, surface, y, from, bins, |p| {
             if (p - from).length_squared() > 1e-18 {
-                candidates.push(bins.bin(p - from));
+                let bin = bins.bin(p - from) as usize;
+                words[bin / 64] |= 1 << (bin % 64);
+                (first, last) = (first.min(bin / 64), last.max(bin / 64));
             }
         });
-        candidates.sort_unstable();
-        candidates.dedup();
+        let candidates = (first..=last).flat_map(|w| {
+            let mut bits = words.get(w).copied().unwrap_or(0);
+            std::iter::from_fn(move || {
+                (bits != 0).then(|| {
+                    let bit = bits.trailing_zeros();
+                    bits &= bits - 1;
+                    (w * 64) as u32 + bit
+                })
+            })
+        });
         // The bin of the leaf's centre always holds it, so that a link sits in a bin and its opposite
         // at the two ends (§4.2.2).
         // (unless it is seen edge-on: the inner faces of a roof opening would close a ring of its bins).
@@ -1574,7 +1598,7 @@ fn sender_bins(nodes: &[Node], surface: Surface, y: &Node, from: Vec3, bins: &Cu
             f(centre_bin, d, centre_depth);
             forced = Some(centre_bin);
         }
-        for bin in candidates.into_iter().filter(|&b| Some(b) != forced) {
+        for bin in candidates.filter(|&b| Some(b) != forced) {
             let w = bins.centre(bin);
             if let Some(t) = cell_hit(surface, y.element, from, w) {
                 f(bin, w * t, t);
