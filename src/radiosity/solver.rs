@@ -1562,7 +1562,7 @@ fn sender_bins(nodes: &[Node], surface: Surface, y: &Node, from: Vec3, bins: &Cu
         // The bins the samples fall in, as bits (ascending bin order, each once; no allocation).
         let mut stack = [0u64; STACK_BIN_WORDS];
         let mut heap = Vec::new();
-        let needed = (bins.count() as usize).div_ceil(64);
+        let needed = bins.count().div_ceil(64);
         let words: &mut [u64] = if needed <= STACK_BIN_WORDS {
             &mut stack[..needed]
         } else {
