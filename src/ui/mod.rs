@@ -159,66 +159,25 @@ fn inspector_ui(
                 }
                 match gi.method {
                     GiMethod::Vpl => {
-                        match vpl {
-                            Some(mut settings) => {
-                                ui.push_id(entity, |ui| vpl_ui(ui, &mut settings));
-                            }
-                            None => {
-                                if ui.button("tune VPL settings (adds VplSettings::MEDIUM)").clicked() {
-                                    commands.entity(entity).insert(VplSettings::MEDIUM);
-                                }
-                            }
-                        }
+                        method_settings(ui, &mut commands, entity, vpl, "tune VPL settings (adds VplSettings::MEDIUM)", VplSettings::MEDIUM, vpl_ui);
                         if let Some(set) = &vpl_set {
                             ui.label(vpl_set_line(set));
                         }
                     }
-                    GiMethod::RsmGather => match rsm_gather {
-                        Some(mut settings) => {
-                            ui.push_id(entity, |ui| rsm_gather_ui(ui, &mut settings));
-                        }
-                        None => {
-                            if ui.button("tune RSM gather settings (adds RsmGatherSettings::MEDIUM)").clicked() {
-                                commands.entity(entity).insert(RsmGatherSettings::MEDIUM);
-                            }
-                        }
-                    },
-                    GiMethod::Drm => match drm {
-                        Some(mut settings) => {
-                            ui.push_id(entity, |ui| drm_ui(ui, &mut settings));
-                        }
-                        None => {
-                            if ui.button("tune DRM settings (adds DrmSettings::MEDIUM)").clicked() {
-                                commands.entity(entity).insert(DrmSettings::MEDIUM);
-                            }
-                        }
-                    },
+                    GiMethod::RsmGather => {
+                        method_settings(ui, &mut commands, entity, rsm_gather, "tune RSM gather settings (adds RsmGatherSettings::MEDIUM)", RsmGatherSettings::MEDIUM, rsm_gather_ui);
+                    }
+                    GiMethod::Drm => {
+                        method_settings(ui, &mut commands, entity, drm, "tune DRM settings (adds DrmSettings::MEDIUM)", DrmSettings::MEDIUM, drm_ui);
+                    }
                     GiMethod::Radiosity => {
-                        match radiosity_settings {
-                            Some(mut settings) => {
-                                ui.push_id(entity, |ui| radiosity_ui(ui, &mut settings));
-                            }
-                            None => {
-                                if ui.button("tune radiosity settings (adds RadiositySettings::MEDIUM)").clicked() {
-                                    commands.entity(entity).insert(RadiositySettings::MEDIUM);
-                                }
-                            }
-                        }
+                        method_settings(ui, &mut commands, entity, radiosity_settings, "tune radiosity settings (adds RadiositySettings::MEDIUM)", RadiositySettings::MEDIUM, radiosity_ui);
                         if let Some(activity) = radiosity.as_deref() {
                             radiosity_activity_ui(ui, activity);
                         }
                     }
                     GiMethod::PhotonGrid => {
-                        match photon_settings {
-                            Some(mut settings) => {
-                                ui.push_id(entity, |ui| photon_grid_ui(ui, &mut settings));
-                            }
-                            None => {
-                                if ui.button("tune photon grid settings (adds PhotonGridSettings::MEDIUM)").clicked() {
-                                    commands.entity(entity).insert(PhotonGridSettings::MEDIUM);
-                                }
-                            }
-                        }
+                        method_settings(ui, &mut commands, entity, photon_settings, "tune photon grid settings (adds PhotonGridSettings::MEDIUM)", PhotonGridSettings::MEDIUM, photon_grid_ui);
                         if let Some(activity) = photon_grid.as_deref() {
                             photon_grid_activity_ui(ui, activity);
                         }
@@ -428,6 +387,29 @@ pub fn radiosity_ui(ui: &mut egui::Ui, settings: &mut Mut<RadiositySettings>) {
     });
     ui.add(egui::Slider::new(&mut v.intensity, 0.0..=1000.0).logarithmic(true).text("intensity"));
     commit(v, settings);
+}
+
+/// A method's settings on camera `entity`: their panel when it has them, otherwise a button (`label`)
+/// that adds `preset`.
+fn method_settings<T: Component>(
+    ui: &mut egui::Ui,
+    commands: &mut Commands,
+    entity: Entity,
+    settings: Option<Mut<T>>,
+    label: &str,
+    preset: T,
+    panel: impl FnOnce(&mut egui::Ui, &mut Mut<T>),
+) {
+    match settings {
+        Some(mut settings) => {
+            ui.push_id(entity, |ui| panel(ui, &mut settings));
+        }
+        None => {
+            if ui.button(label).clicked() {
+                commands.entity(entity).insert(preset);
+            }
+        }
+    }
 }
 
 /// The VPL set in use and what its last walk redid.
