@@ -151,8 +151,10 @@
 //! * The push-down re-bins, for each leaf, every sender its ancestors link (once per sender since
 //!   12a076e): small meshes beside large elements (50 000 triangles of small spheres on `dynamic`'s
 //!   floor) make that the larger part of a solve, 14 s of 22 from scratch, and a moving mesh whose
-//!   links reach a whole still sphere re-pushes all of its leaves (15 000 of 39 000, 6 s a solve): the
-//!   light catches up 58–69 frames after a 48-frame move there (one run; the `triangles` report's median of three).
+//!   links reach a whole still sphere re-pushes the leaves of that sphere that can see what changed
+//!   (13 300 of 39 000, 4–5 s a solve; a leaf keeps its links when every sender that came or went above
+//!   it lies behind its plane): the light catches up 33–39 frames after a 48-frame move there (three
+//!   single runs; 40–56 before that cull, 69 in the `triangles` report's median of three at 12a076e).
 //! * While nothing moves, the still scene's links are kept sparse for the first move (about 10 bytes per
 //!   filled bin: 63 MiB in `dynamic`, where the leaves' links take 219 MiB); while meshes move, the kept
 //!   and the merged links together take twice the node links' memory

@@ -608,7 +608,24 @@ pub struct RadiositySolver {
     /// [`create_links`](Self::create_links)): the leaves below none of them keep their pushed-down
     /// links.
     changed_nodes: Option<Vec<bool>>,
+    /// What changed in [`changed_nodes`](Self::changed_nodes), bin by bin where that is known: the
+    /// push-down keeps a leaf's links when every sender its ancestors gained or lost lies behind it.
+    /// `None` with `changed_nodes`: not known for any node.
+    changed_senders: Option<ChangedSenders>,
+    /// Per node, its position and the reach of its samples ([`node_extents`](Self::node_extents)) at
+    /// the last push-down: where a moving sender was when the leaves' links were made.
+    pushed_reach: Vec<(Vec3, f32)>,
     pub times: StageTimes,
+}
+
+/// The senders the changed bins of the nodes in [`RadiositySolver::changed_nodes`] held before or
+/// hold now, per node, for the nodes whose bins changed only where a moving sender linked or left
+/// (`unknown` marks the others: nodes of moving segments, or links derived anew).
+#[derive(Clone, Debug, Default)]
+struct ChangedSenders {
+    /// `(node, sender)` pairs, unsorted, with repeats.
+    pairs: Vec<(u32, u32)>,
+    unknown: Vec<bool>,
 }
 
 /// The links among the segments that do not move, kept between solves while others move (§4 of the
@@ -770,7 +787,7 @@ impl RadiositySolver {
         (self.times.kept_bins_relinked, self.times.kept_links_made) = (None, false);
         self.links = links;
         self.links_full = Some((params.bins.max(1), threshold.to_bits()));
-        (self.touched, self.changed_nodes) = (Vec::new(), None);
+        (self.touched, self.changed_nodes, self.changed_senders) = (Vec::new(), None, None);
         self.times.create_links_ms = start.elapsed().as_secs_f32() * 1e3;
     }
 
@@ -864,8 +881,13 @@ impl RadiositySolver {
             Some(differs) => differs.clone(),
             None => vec![!incremental; self.hierarchy.nodes.len()],
         };
+        // What is known bin by bin: a restored or newly linked bin's senders before and after.
+        let mut unknown = changed.clone();
+        let mut pairs: Vec<(u32, u32)> = Vec::new();
         if incremental {
             for &slot in &self.touched {
+                let node = (slot / per_node) as u32;
+                pairs.extend([(node, links[slot].node), (node, kept.links[slot].node)]);
                 links[slot] = kept.links[slot];
                 changed[slot / per_node] = true;
             }
@@ -878,6 +900,7 @@ impl RadiositySolver {
                 let end = self.hierarchy.ends[s] as usize;
                 links[root as usize * per_node..end * per_node].fill(EMPTY);
                 changed[root as usize..end].fill(true);
+                unknown[root as usize..end].fill(true);
             }
         }
         // Still receivers from moving senders (the bins they fill recorded), then moving receivers from
@@ -886,12 +909,20 @@ impl RadiositySolver {
         let (moving, _) = self.link_segments(&mut links, threshold, None, false, |r| kept.excluded[r], |_| true);
         for &slot in &touched {
             changed[slot / per_node] = true;
+            let node = (slot / per_node) as u32;
+            pairs.extend([(node, kept.links[slot].node), (node, links[slot].node)]);
         }
         self.times.links = kept.count + still + moving;
         self.touched = touched;
         // Added to what changed since the last push-down (`None`: everything).
+        let prior = self.changed_senders.take();
         self.changed_nodes = match self.changed_nodes.take() {
             Some(pending) if (incremental || differs_from_pushed.is_some()) && pending.len() == changed.len() => {
+                // Pending changes without bin-by-bin records are unknown.
+                let mut senders = prior.filter(|p| p.unknown.len() == changed.len()).unwrap_or_else(|| ChangedSenders { pairs: Vec::new(), unknown: pending.clone() });
+                senders.unknown.iter_mut().zip(&unknown).for_each(|(u, n)| *u |= *n);
+                senders.pairs.extend(pairs.into_iter().filter(|p| p.1 != NO_LINK));
+                self.changed_senders = Some(senders);
                 changed.iter_mut().zip(pending).for_each(|(c, p)| *c |= p);
                 Some(changed)
             }
@@ -1033,7 +1064,7 @@ impl RadiositySolver {
     pub fn forget_links(&mut self) {
         (self.links, self.leaf_links) = (Vec::new(), Vec::new());
         (self.static_links, self.full_links, self.links_full) = (None, None, None);
-        (self.touched, self.changed_nodes) = (Vec::new(), None);
+        (self.touched, self.changed_nodes, self.changed_senders) = (Vec::new(), None, None);
     }
 
     fn use_bins(&mut self, params: &SolveParams) {
@@ -1121,7 +1152,9 @@ impl RadiositySolver {
         let surface = Surface { vertices: &self.elements.vertices, triangles: &self.elements.triangles, cells: &self.cells };
         let links = &self.links;
         // After a relink, a leaf none of whose own and ancestors' links changed keeps its result: the
-        // leaves that see none of the moving segments (another room) are not redone.
+        // leaves that see none of the moving segments (another room) are not redone; nor are those
+        // whose ancestors only gained or lost senders behind them (the far side of a still sphere a
+        // moving mesh's links reach).
         let changed_nodes = self.changed_nodes.take();
         let mut leaf_links = std::mem::take(&mut self.leaf_links);
         let reuse = changed_nodes.is_some() && leaf_links.len() == self.elements.len() * per_node;
@@ -1130,17 +1163,41 @@ impl RadiositySolver {
             leaf_links.resize(self.elements.len() * per_node, EMPTY);
         }
         let changed = |node: u32| !reuse || changed_nodes.as_ref().is_some_and(|c| c[node as usize]);
+        // The senders each changed node gained or lost, where known, and how far each sender's
+        // samples reach from its position.
+        let known = self.changed_senders.take().filter(|_| reuse).map(|mut k| {
+            k.pairs.sort_unstable();
+            k.pairs.dedup();
+            k
+        });
+        let reach: Vec<(Vec3, f32)> = nodes.iter().zip(self.node_extents()).map(|(node, extent)| (node.position, extent)).collect();
+        let reach_then = std::mem::take(&mut self.pushed_reach);
+        // Whether what changed at ancestor `a` cannot reach a leaf at `x` facing `n`: every sender its
+        // changed bins held or hold lies behind the leaf's plane, where it was at the last push-down
+        // and where it is now, so it is culled from every bin of the leaf before and after (`n · d ≤ 0`
+        // below) and the leaf's links stay as they are, bit for bit (the senders it does rasterise are
+        // met in the same order).
+        let behind = |a: u32, x: Vec3, n: Vec3| {
+            let far = |(centre, extent): (Vec3, f32)| n.dot(centre - x) + extent * 1.001 + 1e-6 < 0.0;
+            known.as_ref().is_some_and(|k| {
+                if k.unknown[a as usize] || reach_then.len() != reach.len() {
+                    return false;
+                }
+                let start = k.pairs.partition_point(|p| p.0 < a);
+                k.pairs[start..].iter().take_while(|p| p.0 == a).all(|&(_, s)| far(reach[s as usize]) && far(reach_then[s as usize]))
+            })
+        };
         let pushed: usize = leaf_links
             .par_chunks_mut(per_node.max(1))
             .enumerate()
             .map(|(e, out)| {
                 let leaf = self.hierarchy.leaf_of[e];
-                let mut chain = std::iter::successors(Some(leaf), |&a| Some(nodes[a as usize].parent).filter(|&p| p != u32::MAX));
-                if !chain.any(changed) {
-                    return 0;
-                }
                 let x = nodes[leaf as usize].position;
                 let n = nodes[leaf as usize].normal;
+                let mut chain = std::iter::successors(Some(leaf), |&a| Some(nodes[a as usize].parent).filter(|&p| p != u32::MAX));
+                if !chain.any(|a| changed(a) && (a == leaf || !behind(a, x, n))) {
+                    return 0;
+                }
                 out.copy_from_slice(&links[leaf as usize * per_node..(leaf as usize + 1) * per_node]);
                 // The ancestors' senders, each once, in the order they are met (nearest ancestor
                 // first, bin by bin): a sender fills many bins of a node and is linked from several
@@ -1176,8 +1233,10 @@ impl RadiositySolver {
             })
             .sum();
         self.leaf_links = leaf_links;
+        self.pushed_reach = reach;
         self.times.leaves_pushed = pushed;
         self.changed_nodes = Some(vec![false; self.hierarchy.nodes.len()]);
+        self.changed_senders = Some(ChangedSenders { pairs: Vec::new(), unknown: vec![false; self.hierarchy.nodes.len()] });
         // The nodes' own links are only the push-down's input: free them (they are the larger array),
         // unless the next relink merges into them. The full links of a still scene are kept sparse
         // (with `keep_full_links`), for the first move.
@@ -2083,6 +2142,77 @@ mod tests {
         relinking_gives_the_links_made_from_scratch_with(true, true);
     }
 
+    /// A ball in the open (one smooth segment), a plate sliding beside it and a wall behind the plate:
+    /// the ball's side that turns its back to both sees its ancestors' links change (the plate took
+    /// bins from the wall) but only senders behind it come or go, so the push-down keeps that side's
+    /// links, and the links of every leaf are those of a push-down of every leaf.
+    #[test]
+    fn leaves_whose_ancestors_changed_only_behind_them_keep_their_links() {
+        // A UV sphere of radius 0.3 with smooth normals.
+        let (rings, sectors) = (8, 12);
+        let point = |i: u32, j: u32| {
+            let (theta, phi) = (PI * i as f32 / rings as f32, 2.0 * PI * j as f32 / sectors as f32);
+            Vec3::new(theta.sin() * phi.cos(), theta.cos(), theta.sin() * phi.sin())
+        };
+        let mut ball = Vec::new();
+        for i in 0..rings {
+            for j in 0..sectors {
+                let [a, b, c, d] = [point(i, j), point(i + 1, j), point(i + 1, j + 1), point(i, j + 1)];
+                for tri in [[a, b, c], [a, c, d]] {
+                    if (tri[1] - tri[0]).cross(tri[2] - tri[0]).length_squared() < 1e-12 {
+                        continue;
+                    }
+                    let tri = if (tri[1] - tri[0]).cross(tri[2] - tri[0]).dot(tri[0] + tri[1] + tri[2]) > 0.0 { tri } else { [tri[0], tri[2], tri[1]] };
+                    ball.push(PatchTriangle { positions: tri.map(|p| p * 0.3), normals: tri, albedo: [Vec3::splat(0.6); 3], emission: Vec3::ZERO });
+                }
+            }
+        }
+        let wall = square(Vec3::new(3.0, 0.0, 0.0), -Vec3::X, 3.0, Vec3::splat(0.5), Vec3::ZERO);
+        let plate = square(Vec3::new(1.5, 0.0, 0.0), -Vec3::X, 0.8, Vec3::splat(0.8), Vec3::ZERO);
+        let params = SolveParams { bins: 8, bounces: 2, environment: Vec3::ONE, ..Default::default() };
+        let mut elements = Elements::default();
+        for triangles in [ball, wall] {
+            elements.add_patch(&RadiosityPatch { triangles }, 0.1);
+        }
+        let plate_start = elements.len();
+        elements.add_patch(&RadiosityPatch { triangles: plate }, 0.1);
+        let rest = elements.positions.clone();
+        let normals = elements.normals.clone();
+        let back_face: Vec<usize> = (0..plate_start).filter(|&e| elements.normals[e].x < -0.5 && elements.positions[e].x < 0.0).collect();
+        let mut solver = RadiositySolver::new(elements);
+        solver.create_links(&params);
+        solver.refine_and_push();
+        let mut kept_back_face = false;
+        for step in 1..=4 {
+            let moved = |e: usize| e >= plate_start;
+            // Three slides beside the ball, then a jump to its other side (the back face then sees it).
+            let offset = if step < 4 { Vec3::new(0.0, 0.25 * step as f32, 0.1 * step as f32) } else { Vec3::new(-3.0, 0.2, 0.0) };
+            let positions: Vec<Vec3> = rest.iter().enumerate().map(|(e, &p)| if moved(e) { p + offset } else { p }).collect();
+            solver.update_elements(&positions, &normals);
+            let moving = solver.moving_segments(moved);
+            solver.relink(&params, &moving);
+            let mut every_leaf = solver.clone();
+            (every_leaf.changed_nodes, every_leaf.changed_senders) = (None, None);
+            every_leaf.refine_and_push();
+            let mut without_cull = solver.clone();
+            without_cull.changed_senders = None;
+            without_cull.refine_and_push();
+            let before = solver.leaf_links.clone();
+            solver.refine_and_push();
+            assert!(solver.leaf_links == every_leaf.leaf_links, "step {step}: the leaves pushed down in part differ from all pushed");
+            assert!(solver.times.leaves_pushed <= without_cull.times.leaves_pushed);
+            let per_node = solver.node_bins();
+            let unchanged = |e: usize| before[e * per_node..(e + 1) * per_node] == solver.leaf_links[e * per_node..(e + 1) * per_node];
+            if step < 4 {
+                assert!(back_face.iter().all(|&e| unchanged(e)), "step {step}: the back face's links are the same");
+            } else {
+                assert!(!back_face.iter().all(|&e| unchanged(e)), "the plate moved in front of the back face");
+            }
+            kept_back_face |= solver.times.leaves_pushed < without_cull.times.leaves_pushed;
+        }
+        assert!(kept_back_face, "the back face's leaves were pushed down again although only senders behind them changed");
+    }
+
     fn relinking_gives_the_links_made_from_scratch_with(push_first: bool, supersede_first: bool) {
         let mut patches = closed_box(0.7, 0.0);
         patches[0] = RadiosityPatch { triangles: square(-Vec3::X, Vec3::X, 2.0, Vec3::splat(0.7), Vec3::ONE) };
@@ -2145,7 +2275,13 @@ mod tests {
                 assert_eq!(kept.times.links, fresh.times.links, "superseded step: linked bins");
                 continue;
             }
+            // The push-down that skips leaves (nothing changed above them, or only senders behind them)
+            // gives what pushing every leaf down from the same links gives, bit for bit.
+            let mut every_leaf = kept.clone();
+            (every_leaf.changed_nodes, every_leaf.changed_senders) = (None, None);
+            every_leaf.refine_and_push();
             kept.refine_and_push();
+            assert!(kept.leaf_links == every_leaf.leaf_links, "step {step}: the leaves pushed down in part differ from all pushed");
             if step == 1 && push_first {
                 // The second box never sees the plate: its leaves keep what the still scene pushed down.
                 let (pushed, all) = (kept.times.leaves_pushed, kept.elements.len());
