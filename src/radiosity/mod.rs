@@ -153,8 +153,9 @@
 //!   floor) make that the larger part of a solve, 14 s of 22 from scratch, and a moving mesh whose
 //!   links reach a whole still sphere re-pushes the leaves of that sphere that can see what changed
 //!   (13 300 of 39 000, 4–5 s a solve; a leaf keeps its links when every sender that came or went above
-//!   it lies behind its plane): the light catches up 33–39 frames after a 48-frame move there (three
-//!   single runs; 40–56 before that cull, 69 in the `triangles` report's median of three at 12a076e).
+//!   it lies behind its plane): the light catches up 33–67 frames after a 48-frame move there (five
+//!   single runs; 40–56 in four before that cull, 69 in the `triangles` report's median of three at
+//!   12a076e).
 //! * While nothing moves, the still scene's links are kept sparse for the first move (about 10 bytes per
 //!   filled bin: 63 MiB in `dynamic`, where the leaves' links take 219 MiB); while meshes move, the kept
 //!   and the merged links together take twice the node links' memory
