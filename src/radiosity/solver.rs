@@ -604,28 +604,36 @@ pub struct RadiositySolver {
     /// The bins of [`links`](Self::links) that the last [`relink`](Self::relink) filled from moving
     /// senders (the next one restores them from the kept links).
     touched: Vec<usize>,
-    /// The nodes whose links may have changed since the last push-down (`None`: all, as after
-    /// [`create_links`](Self::create_links)): the leaves below none of them keep their pushed-down
-    /// links.
-    changed_nodes: Option<Vec<bool>>,
-    /// What changed in [`changed_nodes`](Self::changed_nodes), bin by bin where that is known: the
-    /// push-down keeps a leaf's links when every sender its ancestors gained or lost lies behind it.
-    /// `None` with `changed_nodes`: not known for any node.
-    changed_senders: Option<ChangedSenders>,
+    /// What changed since the last push-down (`None`: everything, as after
+    /// [`create_links`](Self::create_links)).
+    changes: Option<Changes>,
     /// Per node, its position and the reach of its samples ([`node_extents`](Self::node_extents)) at
     /// the last push-down: where a moving sender was when the leaves' links were made.
     pushed_reach: Vec<(Vec3, f32)>,
     pub times: StageTimes,
 }
 
-/// The senders the changed bins of the nodes in [`RadiositySolver::changed_nodes`] held before or
-/// hold now, per node, for the nodes whose bins changed only where a moving sender linked or left
-/// (`unknown` marks the others: nodes of moving segments, or links derived anew).
+/// The nodes whose links may have changed since the last push-down: the leaves below none of them
+/// keep their pushed-down links, and so do those whose changed ancestors only gained or lost senders
+/// behind them.
 #[derive(Clone, Debug, Default)]
-struct ChangedSenders {
-    /// `(node, sender)` pairs, unsorted, with repeats.
-    pairs: Vec<(u32, u32)>,
+struct Changes {
+    /// Per node, whether its links may have changed.
+    nodes: Vec<bool>,
+    /// Per node, whether it changed in a way not recorded in `senders` (nodes of moving segments,
+    /// links derived anew).
     unknown: Vec<bool>,
+    /// `(node, sender)`: the senders the changed bins of the other changed nodes held before or hold
+    /// now (a moving sender that linked or left, and the still sender it replaced or gave back);
+    /// unsorted, with repeats.
+    senders: Vec<(u32, u32)>,
+}
+
+impl Changes {
+    /// Nothing changed, over `nodes` nodes.
+    fn none(nodes: usize) -> Self {
+        Self { nodes: vec![false; nodes], unknown: vec![false; nodes], senders: Vec::new() }
+    }
 }
 
 /// The links among the segments that do not move, kept between solves while others move (§4 of the
@@ -787,7 +795,7 @@ impl RadiositySolver {
         (self.times.kept_bins_relinked, self.times.kept_links_made) = (None, false);
         self.links = links;
         self.links_full = Some((params.bins.max(1), threshold.to_bits()));
-        (self.touched, self.changed_nodes, self.changed_senders) = (Vec::new(), None, None);
+        (self.touched, self.changes) = (Vec::new(), None);
         self.times.create_links_ms = start.elapsed().as_secs_f32() * 1e3;
     }
 
@@ -852,7 +860,7 @@ impl RadiositySolver {
                 _ => None,
             };
             // The leaves were pushed down from the sparse full links (they are made by that push-down).
-            let pushed_from_source = matches!(source, Some((KeptSource::Sparse(_), _))) && self.changed_nodes.is_some();
+            let pushed_from_source = matches!(source, Some((KeptSource::Sparse(_), _))) && self.changes.is_some();
             let kept = if let Some((source, from)) = source {
                 let (links, count, relinked, differs) = self.derive_kept(source, &from, &excluded, threshold);
                 self.times.kept_bins_relinked = Some(relinked);
@@ -915,16 +923,12 @@ impl RadiositySolver {
         self.times.links = kept.count + still + moving;
         self.touched = touched;
         // Added to what changed since the last push-down (`None`: everything).
-        let prior = self.changed_senders.take();
-        self.changed_nodes = match self.changed_nodes.take() {
-            Some(pending) if (incremental || differs_from_pushed.is_some()) && pending.len() == changed.len() => {
-                // Pending changes without bin-by-bin records are unknown.
-                let mut senders = prior.filter(|p| p.unknown.len() == changed.len()).unwrap_or_else(|| ChangedSenders { pairs: Vec::new(), unknown: pending.clone() });
-                senders.unknown.iter_mut().zip(&unknown).for_each(|(u, n)| *u |= *n);
-                senders.pairs.extend(pairs.into_iter().filter(|p| p.1 != NO_LINK));
-                self.changed_senders = Some(senders);
-                changed.iter_mut().zip(pending).for_each(|(c, p)| *c |= p);
-                Some(changed)
+        self.changes = match self.changes.take() {
+            Some(mut pending) if (incremental || differs_from_pushed.is_some()) && pending.nodes.len() == changed.len() => {
+                pending.nodes.iter_mut().zip(changed).for_each(|(p, c)| *p |= c);
+                pending.unknown.iter_mut().zip(unknown).for_each(|(p, u)| *p |= u);
+                pending.senders.extend(pairs.into_iter().filter(|p| p.1 != NO_LINK));
+                Some(pending)
             }
             _ => None,
         };
@@ -1064,7 +1068,7 @@ impl RadiositySolver {
     pub fn forget_links(&mut self) {
         (self.links, self.leaf_links) = (Vec::new(), Vec::new());
         (self.static_links, self.full_links, self.links_full) = (None, None, None);
-        (self.touched, self.changed_nodes, self.changed_senders) = (Vec::new(), None, None);
+        (self.touched, self.changes) = (Vec::new(), None);
     }
 
     fn use_bins(&mut self, params: &SolveParams) {
@@ -1155,23 +1159,21 @@ impl RadiositySolver {
         // leaves that see none of the moving segments (another room) are not redone; nor are those
         // whose ancestors only gained or lost senders behind them (the far side of a still sphere a
         // moving mesh's links reach).
-        let changed_nodes = self.changed_nodes.take();
         let mut leaf_links = std::mem::take(&mut self.leaf_links);
-        let reuse = changed_nodes.is_some() && leaf_links.len() == self.elements.len() * per_node;
+        let changes = self.changes.take().filter(|_| leaf_links.len() == self.elements.len() * per_node).map(|mut c| {
+            c.senders.sort_unstable();
+            c.senders.dedup();
+            c
+        });
+        let reuse = changes.is_some();
         if !reuse {
             leaf_links.clear();
             leaf_links.resize(self.elements.len() * per_node, EMPTY);
         }
-        let changed = |node: u32| !reuse || changed_nodes.as_ref().is_some_and(|c| c[node as usize]);
-        // The senders each changed node gained or lost, where known, and how far each sender's
-        // samples reach from its position.
-        let known = self.changed_senders.take().filter(|_| reuse).map(|mut k| {
-            k.pairs.sort_unstable();
-            k.pairs.dedup();
-            k
-        });
+        let changed = |node: u32| changes.as_ref().is_none_or(|c| c.nodes[node as usize]);
+        // How far each sender's samples reach from its position, now and at the last push-down.
         let reach: Vec<(Vec3, f32)> = nodes.iter().zip(self.node_extents()).map(|(node, extent)| (node.position, extent)).collect();
-        let reach_then = std::mem::take(&mut self.pushed_reach);
+        let reach_then = Some(std::mem::take(&mut self.pushed_reach)).filter(|then| then.len() == reach.len());
         // Whether what changed at ancestor `a` cannot reach a leaf at `x` facing `n`: every sender its
         // changed bins held or hold lies behind the leaf's plane, where it was at the last push-down
         // and where it is now, so it is culled from every bin of the leaf before and after (`n · d ≤ 0`
@@ -1179,12 +1181,12 @@ impl RadiositySolver {
         // met in the same order).
         let behind = |a: u32, x: Vec3, n: Vec3| {
             let far = |(centre, extent): (Vec3, f32)| n.dot(centre - x) + extent * 1.001 + 1e-6 < 0.0;
-            known.as_ref().is_some_and(|k| {
-                if k.unknown[a as usize] || reach_then.len() != reach.len() {
+            changes.as_ref().zip(reach_then.as_ref()).is_some_and(|(c, then)| {
+                if c.unknown[a as usize] {
                     return false;
                 }
-                let start = k.pairs.partition_point(|p| p.0 < a);
-                k.pairs[start..].iter().take_while(|p| p.0 == a).all(|&(_, s)| far(reach[s as usize]) && far(reach_then[s as usize]))
+                let start = c.senders.partition_point(|p| p.0 < a);
+                c.senders[start..].iter().take_while(|p| p.0 == a).all(|&(_, s)| far(reach[s as usize]) && far(then[s as usize]))
             })
         };
         let pushed: usize = leaf_links
@@ -1235,8 +1237,7 @@ impl RadiositySolver {
         self.leaf_links = leaf_links;
         self.pushed_reach = reach;
         self.times.leaves_pushed = pushed;
-        self.changed_nodes = Some(vec![false; self.hierarchy.nodes.len()]);
-        self.changed_senders = Some(ChangedSenders { pairs: Vec::new(), unknown: vec![false; self.hierarchy.nodes.len()] });
+        self.changes = Some(Changes::none(self.hierarchy.nodes.len()));
         // The nodes' own links are only the push-down's input: free them (they are the larger array),
         // unless the next relink merges into them. The full links of a still scene are kept sparse
         // (with `keep_full_links`), for the first move.
@@ -2192,10 +2193,13 @@ mod tests {
             let moving = solver.moving_segments(moved);
             solver.relink(&params, &moving);
             let mut every_leaf = solver.clone();
-            (every_leaf.changed_nodes, every_leaf.changed_senders) = (None, None);
+            every_leaf.changes = None;
             every_leaf.refine_and_push();
+            // The same push-down with no change known bin by bin: every leaf below a changed node.
             let mut without_cull = solver.clone();
-            without_cull.changed_senders = None;
+            if let Some(c) = without_cull.changes.as_mut() {
+                c.unknown.clone_from(&c.nodes);
+            }
             without_cull.refine_and_push();
             let before = solver.leaf_links.clone();
             solver.refine_and_push();
@@ -2278,7 +2282,7 @@ mod tests {
             // The push-down that skips leaves (nothing changed above them, or only senders behind them)
             // gives what pushing every leaf down from the same links gives, bit for bit.
             let mut every_leaf = kept.clone();
-            (every_leaf.changed_nodes, every_leaf.changed_senders) = (None, None);
+            every_leaf.changes = None;
             every_leaf.refine_and_push();
             kept.refine_and_push();
             assert!(kept.leaf_links == every_leaf.leaf_links, "step {step}: the leaves pushed down in part differ from all pushed");
