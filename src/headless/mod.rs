@@ -646,7 +646,7 @@ fn drive(
                 map.insert(
                     "radiosity".into(),
                     json!({ "elements": radiosity.elements, "nodes": radiosity.nodes, "links": t.links,
-                            "leaves_pushed": t.leaves_pushed, "kept_bins_relinked": t.kept_bins_relinked,
+                            "leaves_pushed": t.leaves_pushed, "leaves_updated": t.leaves_updated, "kept_bins_relinked": t.kept_bins_relinked,
                             "over_budget_mib": radiosity.over_budget_mib, "last_work": format!("{:?}", radiosity.last),
                             "solves": radiosity.solves, "kept_links_derived": radiosity.kept_links_derived,
                             "kept_links_made": radiosity.kept_links_made, "superseded": radiosity.superseded,

@@ -284,13 +284,14 @@ pub(super) fn update_radiosity(
             let (work, times, gathered) = solve(core, &snapshot, key, superseded);
             debug!(
                 "Radiosity solve ({work:?}): elements {:.1} ms, links {:.1} ms ({} bins; kept links derived by relinking {:?} bins), \
-                 push-down {:.1} ms ({} leaves), light {:.1} ms; full links kept {:.1} MiB",
+                 push-down {:.1} ms ({} leaves, {} of them in part), light {:.1} ms; full links kept {:.1} MiB",
                 times.update_elements_ms,
                 times.create_links_ms,
                 times.links,
                 times.kept_bins_relinked,
                 times.refine_push_ms,
                 times.leaves_pushed,
+                times.leaves_updated,
                 times.illumination_ms,
                 core.solver.full_links_bytes() as f64 / f64::from(1 << 20)
             );

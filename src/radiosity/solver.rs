@@ -563,6 +563,9 @@ pub struct StageTimes {
     /// Leaves whose links the last refinement pushed down anew (the others' own and ancestors' links
     /// had not changed since the one before).
     pub leaves_pushed: usize,
+    /// Of [`leaves_pushed`](Self::leaves_pushed), those updated in part: only the bins whose sender
+    /// moved or left were rasterised again, and only the senders that moved or came into every bin.
+    pub leaves_updated: usize,
 }
 
 /// The hierarchical link structure and the lighting solution over a set of [`Elements`].
@@ -577,6 +580,10 @@ pub struct RadiositySolver {
     /// Per element, `6n²` bins: the receiving links of its leaf after
     /// [`refine_and_push`](Self::refine_and_push).
     pub leaf_links: Vec<Link>,
+    /// Per element, one bit per bin of [`leaf_links`](Self::leaf_links): the bins the push-down's hole
+    /// filling ([`fill_holes`]) filled, so that a later push-down can take them out again and update
+    /// the links it rasterised.
+    leaf_filled: Vec<u64>,
     /// Gathered (indirect) irradiance per element, lux: what the frame shows.
     pub gathered: Vec<Vec3>,
     /// Outgoing radiance per node, cd/m².
@@ -1066,7 +1073,7 @@ impl RadiositySolver {
 
     /// Frees every link (nodes', leaves', kept and full).
     pub fn forget_links(&mut self) {
-        (self.links, self.leaf_links) = (Vec::new(), Vec::new());
+        (self.links, self.leaf_links, self.leaf_filled) = (Vec::new(), Vec::new(), Vec::new());
         (self.static_links, self.full_links, self.links_full) = (None, None, None);
         (self.touched, self.changes) = (Vec::new(), None);
     }
@@ -1189,54 +1196,161 @@ impl RadiositySolver {
                 c.senders[start..].iter().take_while(|p| p.0 == a).all(|&(_, s)| far(reach[s as usize]) && far(then[s as usize]))
             })
         };
-        let pushed: usize = leaf_links
+        // A leaf below changed ancestors whose changes are all known updates its links in part: its
+        // bins keep their sender unless that sender moved or is no longer linked above it; only those
+        // bins are rasterised again from every sender (culled by direction), and the senders that
+        // moved or came are rasterised into every bin. A bin's link is the nearest hit over the
+        // senders, the first met on equal depths, so this gives the full push-down's links bit for bit.
+        let words = per_node.div_ceil(64);
+        let mut leaf_filled = std::mem::take(&mut self.leaf_filled);
+        let known = reuse && reach_then.is_some() && leaf_filled.len() == self.elements.len() * words;
+        if leaf_filled.len() != self.elements.len() * words {
+            leaf_filled.clear();
+            leaf_filled.resize(self.elements.len() * words, 0);
+        }
+        let moved = |s: u32| {
+            changes.as_ref().zip(reach_then.as_ref()).is_none_or(|(c, then)| c.unknown[s as usize] || then[s as usize] != reach[s as usize])
+        };
+        let (pushed, updated) = leaf_links
             .par_chunks_mut(per_node.max(1))
+            .zip(leaf_filled.par_chunks_mut(words.max(1)))
             .enumerate()
-            .map(|(e, out)| {
-                let leaf = self.hierarchy.leaf_of[e];
-                let x = nodes[leaf as usize].position;
-                let n = nodes[leaf as usize].normal;
-                let mut chain = std::iter::successors(Some(leaf), |&a| Some(nodes[a as usize].parent).filter(|&p| p != u32::MAX));
-                if !chain.any(|a| changed(a) && (a == leaf || !behind(a, x, n))) {
-                    return 0;
-                }
-                out.copy_from_slice(&links[leaf as usize * per_node..(leaf as usize + 1) * per_node]);
-                // The ancestors' senders, each once, in the order they are met (nearest ancestor
-                // first, bin by bin): a sender fills many bins of a node and is linked from several
-                // ancestors, and its rasterisation from `x` does not depend on which (a large wall
-                // element seen by every level above a small sphere's leaf was rasterised hundreds of
-                // times per leaf). The first-met order keeps the same sender on equal depths.
-                let mut senders: Vec<(u32, u32)> = Vec::new();
-                let mut ancestor = nodes[leaf as usize].parent;
-                while ancestor != u32::MAX {
-                    for link in &links[ancestor as usize * per_node..(ancestor as usize + 1) * per_node] {
-                        if link.node != NO_LINK {
-                            senders.push((link.node, senders.len() as u32));
+            .map_init(
+                // Per worker: per node, the last leaf that met it as a sender and its rank there.
+                || (vec![u32::MAX; nodes.len()], vec![0u32; nodes.len()]),
+                |(met_by, met_rank), (e, (out, filled))| {
+                    let leaf = self.hierarchy.leaf_of[e];
+                    let x = nodes[leaf as usize].position;
+                    let n = nodes[leaf as usize].normal;
+                    let chain = || std::iter::successors(Some(leaf), |&a| Some(nodes[a as usize].parent).filter(|&p| p != u32::MAX));
+                    if !chain().any(|a| changed(a) && (a == leaf || !behind(a, x, n))) {
+                        return (0, 0);
+                    }
+                    // The ancestors' senders, each once, in the order they are met (nearest ancestor
+                    // first, bin by bin): a sender fills many bins of a node and is linked from several
+                    // ancestors, and its rasterisation from `x` does not depend on which (a large wall
+                    // element seen by every level above a small sphere's leaf was rasterised hundreds of
+                    // times per leaf). The first-met order keeps the same sender on equal depths.
+                    let mut senders: Vec<u32> = Vec::new();
+                    let mut ancestor = nodes[leaf as usize].parent;
+                    while ancestor != u32::MAX {
+                        for link in &links[ancestor as usize * per_node..(ancestor as usize + 1) * per_node] {
+                            if link.node != NO_LINK && met_by[link.node as usize] != e as u32 {
+                                met_by[link.node as usize] = e as u32;
+                                senders.push(link.node);
+                                met_rank[link.node as usize] = senders.len() as u32;
+                            }
+                        }
+                        ancestor = nodes[ancestor as usize].parent;
+                    }
+                    let own = &links[leaf as usize * per_node..(leaf as usize + 1) * per_node];
+                    let c = changes.as_ref().filter(|c| known && chain().all(|a| !(c.nodes[a as usize] && c.unknown[a as usize])));
+                    let Some(c) = c else {
+                        out.copy_from_slice(own);
+                        for &sender in &senders {
+                            sender_bins(nodes, surface, &nodes[sender as usize], x, bins, |bin, d, depth| {
+                                if n.dot(d) <= 0.0 {
+                                    return;
+                                }
+                                let slot = &mut out[bin as usize];
+                                if depth < slot.distance {
+                                    (slot.node, slot.distance) = (sender, depth);
+                                }
+                            });
+                        }
+                        fill_holes(out, bins, n, filled);
+                        return (1, 0);
+                    };
+                    // Updated in part. The senders the changed bins of the leaf and its ancestors held or
+                    // hold (came, went or moved).
+                    let mut fresh: Vec<u32> = Vec::new();
+                    for a in chain().filter(|&a| c.nodes[a as usize]) {
+                        let start = c.senders.partition_point(|p| p.0 < a);
+                        fresh.extend(c.senders[start..].iter().take_while(|p| p.0 == a).map(|p| p.1));
+                    }
+                    fresh.sort_unstable();
+                    fresh.dedup();
+                    let is_fresh = |s: u32| fresh.binary_search(&s).is_ok();
+                    let start = c.senders.partition_point(|p| p.0 < leaf);
+                    let own_changed = |s: u32| c.nodes[leaf as usize] && c.senders[start..].iter().take_while(|p| p.0 == leaf).any(|p| p.1 == s);
+                    // Each bin's link as it was before its holes were filled, and the rank of its sender in
+                    // the first-met order (0: the leaf's own link). A bin whose link is not the leaf's own
+                    // now keeps it if its sender stands where it stood, is still linked above, and did not
+                    // come into or leave the leaf's own changed bins (the link may have been an own link
+                    // that is gone).
+                    let rank_of = |s: u32| (met_by[s as usize] == e as u32).then(|| met_rank[s as usize]);
+                    let mut rank = vec![u32::MAX; per_node];
+                    let mut redo = vec![0u64; words];
+                    let mut redone = Vec::new();
+                    for (b, slot) in out.iter_mut().enumerate() {
+                        if filled[b / 64] >> (b % 64) & 1 == 1 {
+                            *slot = EMPTY;
+                        }
+                        if slot.node == NO_LINK {
+                            continue;
+                        }
+                        if *slot == own[b] {
+                            rank[b] = 0;
+                            continue;
+                        }
+                        match rank_of(slot.node).filter(|_| !moved(slot.node) && !own_changed(slot.node)) {
+                            Some(r) => rank[b] = r,
+                            None => {
+                                // Its sender moved or left: this bin is rasterised again from every sender.
+                                redo[b / 64] |= 1 << (b % 64);
+                                redone.push(b as u32);
+                                *slot = own[b];
+                                rank[b] = if own[b].node == NO_LINK { u32::MAX } else { 0 };
+                            }
                         }
                     }
-                    ancestor = nodes[ancestor as usize].parent;
-                }
-                senders.sort_unstable();
-                senders.dedup_by_key(|s| s.0);
-                senders.sort_unstable_by_key(|s| s.1);
-                for &(sender, _) in &senders {
-                    sender_bins(nodes, surface, &nodes[sender as usize], x, bins, |bin, d, depth| {
-                        if n.dot(d) <= 0.0 {
-                            return;
+                    // The leaf's own links, first in the order (some of its bins may have changed).
+                    for (b, slot) in out.iter_mut().enumerate() {
+                        if own[b].distance < slot.distance || (own[b].distance == slot.distance && rank[b] > 0) {
+                            (*slot, rank[b]) = (own[b], 0);
                         }
-                        let slot = &mut out[bin as usize];
-                        if depth < slot.distance {
-                            (slot.node, slot.distance) = (sender, depth);
+                    }
+                    // A cone around the bins to rasterise again, to cull the senders that cannot reach them.
+                    let axis = redone.iter().map(|&b| bins.centre(b)).sum::<Vec3>().normalize_or_zero();
+                    let spread = redone.iter().map(|&b| axis.dot(bins.centre(b)).clamp(-1.0, 1.0).acos() + bins.half_angle(b)).fold(0.0f32, f32::max);
+                    let reaches = |s: u32| {
+                        let (centre, extent) = reach[s as usize];
+                        let d = centre - x;
+                        let distance = d.length();
+                        let extent = extent * 1.001 + 1e-6;
+                        if distance <= extent || axis == Vec3::ZERO {
+                            return true;
                         }
-                    });
-                }
-                fill_holes(out, bins, n);
-                1
-            })
-            .sum();
+                        let (w, wide) = (d / distance, (extent / distance).asin() + 1e-3);
+                        let within = |c: Vec3, angle: f32| angle + wide >= PI || c.dot(w) >= (angle + wide).cos();
+                        within(axis, spread) && redone.iter().any(|&b| within(bins.centre(b), bins.half_angle(b)))
+                    };
+                    for (order, &sender) in senders.iter().enumerate() {
+                        let every_bin = moved(sender) || is_fresh(sender);
+                        if !every_bin && (redone.is_empty() || !reaches(sender)) {
+                            continue;
+                        }
+                        let r = order as u32 + 1;
+                        sender_bins(nodes, surface, &nodes[sender as usize], x, bins, |bin, d, depth| {
+                            let b = bin as usize;
+                            if n.dot(d) <= 0.0 || !(every_bin || redo[b / 64] >> (b % 64) & 1 == 1) {
+                                return;
+                            }
+                            let slot = &mut out[b];
+                            if depth < slot.distance || (depth == slot.distance && r < rank[b]) {
+                                (slot.node, slot.distance, rank[b]) = (sender, depth, r);
+                            }
+                        });
+                    }
+                    fill_holes(out, bins, n, filled);
+                    (1, 1)
+                },
+            )
+            .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+        self.leaf_filled = leaf_filled;
         self.leaf_links = leaf_links;
         self.pushed_reach = reach;
-        self.times.leaves_pushed = pushed;
+        (self.times.leaves_pushed, self.times.leaves_updated) = (pushed, updated);
         self.changes = Some(Changes::none(self.hierarchy.nodes.len()));
         // The nodes' own links are only the push-down's input: free them (they are the larger array),
         // unless the next relink merges into them. The full links of a still scene are kept sparse
@@ -1503,7 +1617,8 @@ impl Linker<'_> {
 /// Fills the empty bins above the horizon of normal `n` that are linked on at least three of their four
 /// sides (on the same cube face) with the nearest of those links: a hole that the discrete senders
 /// left between covered bins, not a view of the environment (whose edge has at most two linked sides).
-fn fill_holes(links: &mut [Link], bins: &CubeBins, n: Vec3) {
+fn fill_holes(links: &mut [Link], bins: &CubeBins, n: Vec3, filled: &mut [u64]) {
+    filled.fill(0);
     let side = bins.n as i64;
     let nn = (bins.n * bins.n) as usize;
     let mut fills = Vec::new();
@@ -1534,6 +1649,7 @@ fn fill_holes(links: &mut [Link], bins: &CubeBins, n: Vec3) {
     }
     for (k, link) in fills {
         links[k] = link;
+        filled[k / 64] |= 1 << (k % 64);
     }
 }
 
@@ -2322,6 +2438,10 @@ mod tests {
             if step > 1 {
                 let (pushed, all) = (kept.times.leaves_pushed, kept.elements.len());
                 assert!(pushed <= all - turned_away, "step {step}: {pushed} of {all} leaves pushed ({turned_away} turned away)");
+                // The walls whose ancestors only swapped the plate's links update the bins of the
+                // plate's old and new place, not every bin.
+                let updated = kept.times.leaves_updated;
+                assert!(updated > 0 && updated <= pushed, "step {step}: {updated} of {pushed} leaves updated in part");
             }
         }
         // The plate is the only segment left out of the kept links, and a wall that starts moving derives
