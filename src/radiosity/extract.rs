@@ -458,15 +458,15 @@ fn solve(core: &mut RadiosityCore, snapshot: &SceneSnapshot, key: &SolveKey, sup
             // Moved instances: keep the links among the rest (§4's update for deforming meshes).
             (Some(ranges), RadiosityWork::Refit) if keep => {
                 let moving = core.solver.moving_segments(|e| ranges.iter().any(|r| r.contains(&e)));
-                core.solver.relink(&params, &moving);
                 // The kept links were derived or made (a move's first solve, seconds with many meshes)
-                // and the meshes moved on meanwhile: the push-down and the light of these poses would
-                // be stale on arrival. Stop here; the links stay stale (`links_key` is not set), so the
-                // next solve relinks the moving meshes at their newest poses over the kept links, and
-                // its push-down covers what this relink changed.
+                // and the meshes moved on meanwhile: linking the moving meshes, the push-down and the
+                // light of these poses would be stale on arrival. Stop there; the links stay stale
+                // (`links_key` is not set), so the next solve relinks the moving meshes at their newest
+                // poses over the kept links, and its push-down covers what this relink changed.
+                let stopped = core.solver.relink_unless(&params, &moving, || may_stop && superseded.is_set());
                 let solver_times = core.solver.times;
                 let derived = solver_times.kept_bins_relinked.is_some() || solver_times.kept_links_made;
-                if derived && superseded.is_set() && may_stop {
+                if stopped || (derived && superseded.is_set() && may_stop) {
                     core.superseded_last = true;
                     let times = StageTimes { update_elements_ms: times.update_elements_ms, ..solver_times };
                     return (RadiosityWork::Superseded, times, Vec::new());

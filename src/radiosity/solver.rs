@@ -704,6 +704,22 @@ impl FullLinks {
 }
 
 /// Links a kept-links array is derived from ([`RadiositySolver::relink`]).
+/// What [`RadiositySolver::derive_kept`] made: the kept links and how they differ from their source.
+struct Derived {
+    links: Vec<Link>,
+    /// Bins of `links` that hold a link.
+    count: usize,
+    /// Bins linked again (their link led into a segment left out now).
+    relinked: usize,
+    /// Per node, whether its links differ from the source's.
+    differs: Vec<bool>,
+    /// `(node, sender)`: what the bins linked again held in the source and hold now.
+    senders: Vec<(u32, u32)>,
+    /// Per node, whether a bin other than those linked again took another link (never, as the kept
+    /// links are exact; recorded rather than assumed).
+    unknown: Vec<bool>,
+}
+
 #[derive(Clone, Copy)]
 enum KeptSource<'a> {
     /// One `6n²`-bin array per node.
@@ -819,6 +835,14 @@ impl RadiositySolver {
     /// again. Without such links (new bins or threshold, or a segment that moved before no longer left
     /// out) the kept links are made anew, the cost of `create_links` once.
     pub fn relink(&mut self, params: &SolveParams, moving: &[bool]) {
+        self.relink_unless(params, moving, || false);
+    }
+
+    /// [`relink`](Self::relink), but when the kept links had to be made or derived (seconds, with many
+    /// meshes starting to move) and `stop()` then says the meshes moved on, the moving segments are
+    /// not linked at these stale poses: the links are the kept ones, and what changed is recorded so
+    /// that the next relink and push-down make up for it. Returns whether it stopped so.
+    pub fn relink_unless(&mut self, params: &SolveParams, moving: &[bool], stop: impl Fn() -> bool) -> bool {
         let start = std::time::Instant::now();
         let roots = self.hierarchy.roots.len();
         let threshold = params.subdivision_threshold.max(1e-3);
@@ -830,12 +854,12 @@ impl RadiositySolver {
         (self.times.kept_bins_relinked, self.times.kept_links_made) = (None, false);
         // With kept links derived from the full links the leaves were last pushed down from: the nodes
         // whose links differ from those.
-        let mut differs_from_pushed: Option<Vec<bool>> = None;
+        let mut differs_from_pushed: Option<(Vec<bool>, Vec<(u32, u32)>, Vec<bool>)> = None;
         if !reusable {
             if self.static_links.is_none() && !(0..roots).any(moving) {
                 // Nothing moves and nothing is kept: a plain rebuild, keeping nothing.
                 self.create_links(params);
-                return;
+                return false;
             }
             // Exclude what moves now, and what moved before while that stays a small part of the scene
             // (a mesh that moves on and off should not remake the kept links each time it restarts).
@@ -869,10 +893,10 @@ impl RadiositySolver {
             // The leaves were pushed down from the sparse full links (they are made by that push-down).
             let pushed_from_source = matches!(source, Some((KeptSource::Sparse(_), _))) && self.changes.is_some();
             let kept = if let Some((source, from)) = source {
-                let (links, count, relinked, differs) = self.derive_kept(source, &from, &excluded, threshold);
+                let Derived { links, count, relinked, differs, senders, unknown } = self.derive_kept(source, &from, &excluded, threshold);
                 self.times.kept_bins_relinked = Some(relinked);
                 if pushed_from_source {
-                    differs_from_pushed = Some(differs);
+                    differs_from_pushed = Some((differs, senders, unknown));
                 }
                 StaticLinks { excluded, bins: tag.0, threshold: tag.1, links, count }
             } else {
@@ -892,13 +916,13 @@ impl RadiositySolver {
         // The merged links of the last call differ from the kept ones only in the bins its moving
         // senders filled (`touched`) and in the moving receivers' nodes: restore those, not the whole array.
         let incremental = links.len() == kept.links.len();
-        let mut changed = match &differs_from_pushed {
-            Some(differs) => differs.clone(),
-            None => vec![!incremental; self.hierarchy.nodes.len()],
+        // What is known bin by bin: a restored or newly linked bin's senders before and after (and
+        // those of the bins the kept links linked again).
+        let derived = differs_from_pushed.is_some();
+        let (mut changed, mut unknown, mut pairs) = match differs_from_pushed {
+            Some((differs, senders, unknown)) => (differs, unknown, senders),
+            None => (vec![!incremental; self.hierarchy.nodes.len()], vec![!incremental; self.hierarchy.nodes.len()], Vec::new()),
         };
-        // What is known bin by bin: a restored or newly linked bin's senders before and after.
-        let mut unknown = changed.clone();
-        let mut pairs: Vec<(u32, u32)> = Vec::new();
         if incremental {
             for &slot in &self.touched {
                 let node = (slot / per_node) as u32;
@@ -920,8 +944,10 @@ impl RadiositySolver {
         }
         // Still receivers from moving senders (the bins they fill recorded), then moving receivers from
         // everything.
-        let (still, touched) = self.link_segments(&mut links, threshold, None, true, |r| !kept.excluded[r], |s| kept.excluded[s]);
-        let (moving, _) = self.link_segments(&mut links, threshold, None, false, |r| kept.excluded[r], |_| true);
+        let stopped = !reusable && stop();
+        let (still, touched) =
+            if stopped { (0, Vec::new()) } else { self.link_segments(&mut links, threshold, None, true, |r| !kept.excluded[r], |s| kept.excluded[s]) };
+        let (moving, _) = if stopped { (0, Vec::new()) } else { self.link_segments(&mut links, threshold, None, false, |r| kept.excluded[r], |_| true) };
         for &slot in &touched {
             changed[slot / per_node] = true;
             let node = (slot / per_node) as u32;
@@ -931,7 +957,7 @@ impl RadiositySolver {
         self.touched = touched;
         // Added to what changed since the last push-down (`None`: everything).
         self.changes = match self.changes.take() {
-            Some(mut pending) if (incremental || differs_from_pushed.is_some()) && pending.nodes.len() == changed.len() => {
+            Some(mut pending) if (incremental || derived) && pending.nodes.len() == changed.len() => {
                 pending.nodes.iter_mut().zip(changed).for_each(|(p, c)| *p |= c);
                 pending.unknown.iter_mut().zip(unknown).for_each(|(p, u)| *p |= u);
                 pending.senders.extend(pairs.into_iter().filter(|p| p.1 != NO_LINK));
@@ -942,6 +968,7 @@ impl RadiositySolver {
         self.links = links;
         self.static_links = Some(kept);
         self.times.create_links_ms = start.elapsed().as_secs_f32() * 1e3;
+        stopped
     }
 
     /// The links among the segments outside `excluded` from `source`, links exact for the segments
@@ -955,10 +982,10 @@ impl RadiositySolver {
     ///
     /// Returns the links, their filled bins, the bins linked again and, per node, whether its links
     /// differ from `source`'s.
-    fn derive_kept(&self, source: KeptSource, from: &[bool], excluded: &[bool], threshold: f32) -> (Vec<Link>, usize, usize, Vec<bool>) {
+    fn derive_kept(&self, source: KeptSource, from: &[bool], excluded: &[bool], threshold: f32) -> Derived {
         let per_node = self.node_bins();
         let Some(bins) = self.bins.as_ref() else {
-            return (Vec::new(), 0, 0, Vec::new());
+            return Derived { links: Vec::new(), count: 0, relinked: 0, differs: Vec::new(), senders: Vec::new(), unknown: Vec::new() };
         };
         let nodes = &self.hierarchy.nodes;
         let mut segment = vec![0u32; nodes.len()];
@@ -970,19 +997,22 @@ impl RadiositySolver {
             excluded[s] && !from[s]
         };
         let mut links = vec![EMPTY; nodes.len() * per_node];
-        // Per node, the bins to fill: one cone per segment their links led into, and how many.
-        let own: Vec<(Vec<(u32, Cone)>, usize)> = links
+        // Per node, the bins to fill: one cone per segment their links led into, and those bins with
+        // the link they held.
+        let own: Vec<(Vec<(u32, Cone)>, Vec<(u32, u32)>)> = links
             .par_chunks_mut(per_node.max(1))
             .enumerate()
             .map(|(k, out)| {
                 if excluded[segment[k] as usize] {
-                    return (Vec::new(), 0);
+                    return (Vec::new(), Vec::new());
                 }
                 let mut needed: Vec<(u32, u32)> = Vec::new();
+                let mut held: Vec<(u32, u32)> = Vec::new();
                 let mut take = |slot: usize, link: Link| {
                     if link.node == NO_LINK {
                     } else if newly(link.node) {
                         needed.push((segment[link.node as usize], slot as u32));
+                        held.push((slot as u32, link.node));
                     } else {
                         out[slot] = link;
                     }
@@ -992,13 +1022,15 @@ impl RadiositySolver {
                     KeptSource::Sparse(full) => full.node(k).for_each(|(slot, link)| take(slot, link)),
                 }
                 let tagged = needed.iter().map(|&(s, b)| (s, Cone { axis: bins.centre(b), angle: bins.half_angle(b) })).collect();
-                (merge_cones(tagged), needed.len())
+                held.sort_unstable();
+                (merge_cones(tagged), held)
             })
             .collect();
-        let relinked: usize = own.iter().map(|o| o.1).sum();
-        let differs: Vec<bool> = own.iter().enumerate().map(|(k, o)| o.1 > 0 || excluded[segment[k] as usize]).collect();
+        let relinked: usize = own.iter().map(|o| o.1.len()).sum();
+        let differs: Vec<bool> = own.iter().enumerate().map(|(k, o)| !o.1.is_empty() || excluded[segment[k] as usize]).collect();
+        let (tagged, held): (Vec<Vec<(u32, Cone)>>, Vec<Vec<(u32, u32)>>) = own.into_iter().unzip();
         // Each node's cones hold its descendants' (children come after their parent).
-        let mut tagged: Vec<Vec<(u32, Cone)>> = own.into_iter().map(|o| o.0).collect();
+        let mut tagged = tagged;
         for k in (0..nodes.len()).rev() {
             let node = nodes[k];
             if !node.is_leaf() && node.children().any(|c| !tagged[c as usize].is_empty()) {
@@ -1008,14 +1040,32 @@ impl RadiositySolver {
             }
         }
         let cones: Vec<Vec<Cone>> = tagged.into_iter().map(|t| t.into_iter().map(|(_, c)| c).collect()).collect();
+        let mut unknown = vec![false; nodes.len()];
         if relinked > 0 {
             let extent = self.node_extents();
             let restrict = Restrict { cones: &cones, extent: &extent };
             let roots = &self.hierarchy.roots;
-            self.link_segments(&mut links, threshold, Some(restrict), false, |r| !excluded[r] && !cones[roots[r] as usize].is_empty(), |s| !excluded[s]);
+            let (_, stored) = self.link_segments(&mut links, threshold, Some(restrict), true, |r| !excluded[r] && !cones[roots[r] as usize].is_empty(), |s| !excluded[s]);
+            // A store outside the bins linked again would change a link the leaves were pushed
+            // down from without a record of it.
+            for slot in stored {
+                let k = slot / per_node;
+                if held[k].binary_search_by_key(&((slot % per_node) as u32), |h| h.0).is_err() {
+                    unknown[k] = true;
+                }
+            }
         }
+        let senders: Vec<(u32, u32)> = held
+            .iter()
+            .enumerate()
+            .flat_map(|(k, held)| {
+                let links = &links;
+                held.iter().flat_map(move |&(slot, before)| [(k as u32, before), (k as u32, links[k * per_node + slot as usize].node)])
+            })
+            .filter(|p| p.1 != NO_LINK)
+            .collect();
         let count = links.par_iter().filter(|l| l.node != NO_LINK).count();
-        (links, count, relinked, differs)
+        Derived { links, count, relinked, differs, senders, unknown }
     }
 
     /// Per node, the radius around its position that holds every point of its leaves' dual cells (where
@@ -2249,14 +2299,25 @@ mod tests {
     }
 
     fn relinking_gives_the_links_made_from_scratch(push_first: bool) {
-        relinking_gives_the_links_made_from_scratch_with(push_first, false);
+        relinking_gives_the_links_made_from_scratch_with(push_first, Supersede::No);
+    }
+
+    /// Whether the first move's solve is superseded, and where.
+    #[derive(Clone, Copy, PartialEq)]
+    enum Supersede {
+        No,
+        /// After every link (the moving segments' too).
+        AfterLinks,
+        /// Once the kept links are derived, before the moving segments are linked.
+        AfterKeptLinks,
     }
 
     /// The first move's solve superseded after its links (no push-down, no light: the meshes moved on),
     /// the next relink and push-down make up for it.
     #[test]
     fn a_first_move_superseded_after_its_links_gives_the_solution_made_from_scratch() {
-        relinking_gives_the_links_made_from_scratch_with(true, true);
+        relinking_gives_the_links_made_from_scratch_with(true, Supersede::AfterLinks);
+        relinking_gives_the_links_made_from_scratch_with(true, Supersede::AfterKeptLinks);
     }
 
     /// A ball in the open (one smooth segment), a plate sliding beside it and a wall behind the plate:
@@ -2333,7 +2394,7 @@ mod tests {
         assert!(kept_back_face, "the back face's leaves were pushed down again although only senders behind them changed");
     }
 
-    fn relinking_gives_the_links_made_from_scratch_with(push_first: bool, supersede_first: bool) {
+    fn relinking_gives_the_links_made_from_scratch_with(push_first: bool, supersede_first: Supersede) {
         let mut patches = closed_box(0.7, 0.0);
         patches[0] = RadiosityPatch { triangles: square(-Vec3::X, Vec3::X, 2.0, Vec3::splat(0.7), Vec3::ONE) };
         // A second closed box beside it, lit by its own glowing wall: it never sees the plate.
@@ -2373,7 +2434,8 @@ mod tests {
             kept.update_elements(&positions, &normals);
             let moving = kept.moving_segments(moved);
             assert_eq!(moving.iter().filter(|m| **m).count(), 1, "the plate is one segment");
-            kept.relink(&params, &moving);
+            let stop = step == 1 && supersede_first == Supersede::AfterKeptLinks;
+            assert_eq!(kept.relink_unless(&params, &moving, || stop), stop, "step {step}: stopped after the kept links");
             if step == 1 {
                 // Only the bins that saw the plate are linked again, not the walls with each other.
                 let relinked = kept.times.kept_bins_relinked.expect("kept links derived from the full links");
@@ -2388,11 +2450,18 @@ mod tests {
                 assert_eq!(kept.times.kept_bins_relinked, None, "step {step}: the kept links are reused");
             }
             let kept_links = kept.links.clone();
-            if step == 1 && supersede_first {
+            if step == 1 && supersede_first == Supersede::AfterLinks {
                 let mut fresh = RadiositySolver::new(elements.clone());
                 fresh.update_elements(&positions, &normals);
                 fresh.create_links(&params);
                 assert_eq!(kept.times.links, fresh.times.links, "superseded step: linked bins");
+                continue;
+            }
+            if stop {
+                // Only the kept links: the plate is linked with nothing yet.
+                let count = kept.static_links.as_ref().expect("kept links").count;
+                assert_eq!(kept.times.links, count, "stopped: the links are the kept ones");
+                assert!(kept.touched.is_empty(), "stopped: no bin took a link from the plate");
                 continue;
             }
             // The push-down that skips leaves (nothing changed above them, or only senders behind them)
