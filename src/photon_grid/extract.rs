@@ -10,7 +10,7 @@ use bevy::render::extract_resource::ExtractResource;
 use super::PhotonGridSettings;
 use super::grid::{self, FieldParams, GridLayout, PhotonPaths, PhotonStats, ProbeRays, RGrid, ShField, TraceParams, VGrid};
 use super::prepare::PhotonGridUniform;
-use crate::background::{self, Blend, CpuJob, CpuMethodParams, JobKey, MethodUse};
+use crate::background::{self, BackgroundJob, Blend, CpuJob, CpuMethodParams, JobKey, MethodUse};
 use crate::camera::GiMethod;
 use crate::scene::{SceneSnapshot, SnapshotLight};
 
@@ -145,6 +145,10 @@ pub struct PhotonGridState {
     /// start the background laid out from the field it replaces, so that the main thread never mixes
     /// fields itself.
     pending: Option<(NewField, Arc<Vec<u32>>)>,
+    /// The start of the waiting field's blend, laid out in the background from the shown field's end
+    /// when that field replaced another waiting one (whose start it had been laid out from, and which
+    /// was never shown): the main thread never mixes fields itself.
+    pending_start: BackgroundJob<(), Vec<Vec4>>,
 }
 
 /// Everything the preparation depends on: the scene and the settings it reads (not the gather-only
@@ -212,6 +216,7 @@ pub(super) fn update_photon_grid(
         MethodUse::Off => {
             if state.shown.take().is_some() || state.job.is_active() {
                 state.pending = None;
+                state.pending_start.reset();
                 state.job.reset();
                 *output = PhotonGridOutput { generation: output.generation + 1, ..default() };
                 (activity.busy, activity.ready) = (false, false);
@@ -233,16 +238,27 @@ pub(super) fn update_photon_grid(
             &[(&DIAGNOSTIC_VOXELIZE, t.voxelize_ms), (&DIAGNOSTIC_TRACE, t.trace_ms), (&DIAGNOSTIC_RGRID, t.rgrid_ms), (&DIAGNOSTIC_FIELD, t.field_ms)],
         );
         *activity = PhotonGridActivity { updates: activity.updates + 1, frames_since_start: activity.frames_since_start, ..done };
-        let waits = |shown: &ShownField, field: &NewField| !shown.blend.is_done() && field.from.is_some() && shown.layout == field.layout;
+        let waiting = state.pending.is_some();
+        let waits = |shown: &ShownField, field: &NewField| {
+            (!shown.blend.is_done() || waiting) && field.from.is_some() && shown.layout == field.layout && shown.cell_probe.len() == field.cell_probe.len()
+        };
         match (field, state.shown.take()) {
-            // The shown field still blends in: the new one waits for its end, unless one already waits
-            // (its start was laid out from the waiting field, never shown: made here from what is shown).
-            (Some(field), Some(shown)) if state.pending.is_none() && waits(&shown, &field) => {
+            // The shown field still blends in: the new one waits for its end. When one already waits,
+            // the new one replaces it; its start was laid out from the waiting field, never shown, so
+            // it is laid out again, in the background, from where the shown field's blend ends.
+            (Some(mut field), Some(shown)) if waits(&shown, &field) => {
+                if waiting {
+                    let (cell_probe, to) = (field.cell_probe.clone(), field.to.clone());
+                    let (old_cell_probe, old) = (shown.cell_probe.clone(), shown.to.clone());
+                    state.pending_start.start((), move || blend_start(&cell_probe, &to, &old_cell_probe, &old));
+                    field.from = None;
+                }
                 state.pending = Some((field, occupancy));
                 state.shown = Some(shown);
             }
             (field, shown) => {
                 state.pending = None;
+                state.pending_start.reset();
                 state.shown = field.map(|field| ShownField::after(shown, field, occupancy));
             }
         }
@@ -263,10 +279,18 @@ pub(super) fn update_photon_grid(
 
     // 3. Write the output when the field, the blend or a gather setting changed (a waiting field
     //    starts once the blend before it ended).
-    if state.shown.as_ref().is_some_and(|shown| shown.blend.is_done())
-        && let Some((field, occupancy)) = state.pending.take()
-    {
-        state.shown = Some(ShownField::after(state.shown.take(), field, occupancy));
+    if state.shown.as_ref().is_some_and(|shown| shown.blend.is_done()) && state.pending.is_some() {
+        if let Some(((), from)) = state.pending_start.poll()
+            && let Some((field, _)) = state.pending.as_mut()
+        {
+            field.from = Some(Arc::new(from));
+        }
+        // (A start still being laid out: the shown field holds a frame or two more.)
+        if !state.pending_start.is_running()
+            && let Some((field, occupancy)) = state.pending.take()
+        {
+            state.shown = Some(ShownField::after(state.shown.take(), field, occupancy));
+        }
     }
     if let Some(shown) = &mut state.shown {
         let weight = shown.blend.advance();

@@ -98,13 +98,15 @@
 //! the task also flattens the new coefficients and lays the last field's out at the new probes, and the
 //! gather mixes the two buffers by a weight in its uniform. A field that arrives while the one before
 //! it still blends in waits for that blend to end (at most five frames) and then starts from the
-//! laid-out last field; only a third field arriving meanwhile (a preparation shorter than a few
-//! frames) has its start mixed on the main thread. The main thread pays for polling and
+//! laid-out last field; a third field arriving meanwhile (a preparation shorter than the blend's
+//! frames) replaces the waiting one, and its start is laid out again in the background from where the
+//! shown field's blend ends (the waiting field was never shown). The main thread pays for polling and
 //! copying the snapshot when a task starts (O(instances)), and swaps `Arc`s when a field arrives
 //! ([`MainThreadCost::photon_grid_ms`](crate::MainThreadCost): at most 0.26 ms a frame in `dynamic`
 //! with one mesh moving at 64² and 0.08–0.16 ms at 256²; 3.2 ms when a new field's coefficients were
-//! copied and blended on it, 0.5–0.8 ms in each blend frame at the default, and 0.9–1.2 ms at 256² when
-//! a field arriving mid-blend had its start mixed on the main thread). [`PhotonGridActivity`]
+//! copied and blended on it, 0.5–0.8 ms in each blend frame at the default, and 0.9–4.3 ms at 256² when
+//! a field arriving mid-blend had its start mixed on the main thread: on a machine whose frames are
+//! slow next to the preparation, that was the worst frame of every motion). [`PhotonGridActivity`]
 //! and the diagnostics `diffuse_gi/photon_{voxelize,trace,rgrid,field}` report the paper's Table 1
 //! stages (milliseconds of the background task); the gather is the GPU span `diffuse_gi/photon_gather`.
 //!

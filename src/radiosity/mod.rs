@@ -75,7 +75,8 @@
 //!   the bin of its centre and in every bin whose *centre ray* meets its dual cell (the quads of vertex,
 //!   edge midpoints and centroid in its triangles), as a rasteriser samples pixel centres; a cluster in
 //!   the bins of its children's centres. An ancestor's link is re-binned by its direction from the leaf
-//!   during the push-down, and holes left between covered bins are filled from their neighbours. With one
+//!   during the push-down, and holes left between covered bins are filled from their neighbours (the
+//!   filled bins are remembered, so that a later push-down can update the rest in part). With one
 //!   bin per link (the paper), 15 % of a closed box's bins stayed empty; with every bin a leaf's disc
 //!   touched, each silhouette was half a bin too wide and a roof closed a quarter of the sky through its
 //!   opening (the roof-opening unit test: −18 % against the form factor then, −4.7 % now).
@@ -143,19 +144,23 @@
 //!   meshes starting at once, 231 000 bins to relink: links 3.5–3.8 s, half a full solve (the cost per
 //!   relinked bin is that of one mesh: the pairs left to visit grow with the bins to fill). When the
 //!   meshes moved on while those links were made (the main thread marks the running solve superseded,
-//!   [`crate::background::Superseded`]), that solve stops after them (`RadiosityWork::Superseded`: no
-//!   push-down, no light, at most once in a row) and the next, from the newest poses, reuses them: after
-//!   a move of 10 frames the light catches up in 34–36 frames instead of 45–55 with ten meshes, 17–18
-//!   instead of 22–24 with one (256², two alternating runs each). A move that lasts longer than the
-//!   derivation gains nothing (32 frames: 23–28 against 20–29).
+//!   [`crate::background::Superseded`]), that solve stops right after the kept links, before linking
+//!   the moving meshes at poses already stale ([`RadiositySolver::relink_unless`];
+//!   `RadiosityWork::Superseded`: no push-down, no light, at most once in a row) and the next, from the
+//!   newest poses, reuses them: after a move of 10 frames the light catches up in 19–22 frames with ten
+//!   meshes (three runs at 256²; 26–35 in seven runs when the stale poses were still linked, 45–55
+//!   before the solve stopped at all).
 //! * The push-down re-bins, for each leaf, every sender its ancestors link (once per sender since
 //!   12a076e): small meshes beside large elements (50 000 triangles of small spheres on `dynamic`'s
-//!   floor) make that the larger part of a solve, 14 s of 22 from scratch, and a moving mesh whose
-//!   links reach a whole still sphere re-pushes the leaves of that sphere that can see what changed
-//!   (13 300 of 39 000, 4–5 s a solve; a leaf keeps its links when every sender that came or went above
-//!   it lies behind its plane): the light catches up 33–67 frames after a 48-frame move there (five
-//!   single runs; 40–56 in four before that cull, 69 in the `triangles` report's median of three at
-//!   12a076e).
+//!   floor) make that the larger part of a solve, 15 s of 24 from scratch. After a move a leaf below a
+//!   changed node is updated in part when every change above it is known bin by bin (the still nodes'
+//!   bins that a moving sender took or gave back, the bins a first move linked again): each bin keeps
+//!   its link unless its sender moved or left, only those bins are rasterised again (from the senders
+//!   whose direction can reach them), and only the senders that moved or came are rasterised into
+//!   every bin; the links are the full push-down's bit for bit (the relink unit tests compare every
+//!   step). In that 42 k scene the last push-down after a 48-frame move redoes 13 000 leaves, 12 400
+//!   of them in part, in 1.2–1.7 s (4.1–5.5 s before), and the light catches up 14–23 frames after
+//!   the move (ten single runs; 33–67 before).
 //! * While nothing moves, the still scene's links are kept sparse for the first move (about 10 bytes per
 //!   filled bin: 63 MiB in `dynamic`, where the leaves' links take 219 MiB); while meshes move, the kept
 //!   and the merged links together take twice the node links' memory
