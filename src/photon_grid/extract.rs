@@ -238,30 +238,7 @@ pub(super) fn update_photon_grid(
             &[(&DIAGNOSTIC_VOXELIZE, t.voxelize_ms), (&DIAGNOSTIC_TRACE, t.trace_ms), (&DIAGNOSTIC_RGRID, t.rgrid_ms), (&DIAGNOSTIC_FIELD, t.field_ms)],
         );
         *activity = PhotonGridActivity { updates: activity.updates + 1, frames_since_start: activity.frames_since_start, ..done };
-        let waiting = state.pending.is_some();
-        let waits = |shown: &ShownField, field: &NewField| {
-            (!shown.blend.is_done() || waiting) && field.from.is_some() && shown.layout == field.layout && shown.cell_probe.len() == field.cell_probe.len()
-        };
-        match (field, state.shown.take()) {
-            // The shown field still blends in: the new one waits for its end. When one already waits,
-            // the new one replaces it; its start was laid out from the waiting field, never shown, so
-            // it is laid out again, in the background, from where the shown field's blend ends.
-            (Some(mut field), Some(shown)) if waits(&shown, &field) => {
-                if waiting {
-                    let (cell_probe, to) = (field.cell_probe.clone(), field.to.clone());
-                    let (old_cell_probe, old) = (shown.cell_probe.clone(), shown.to.clone());
-                    state.pending_start.start((), move || blend_start(&cell_probe, &to, &old_cell_probe, &old));
-                    field.from = None;
-                }
-                state.pending = Some((field, occupancy));
-                state.shown = Some(shown);
-            }
-            (field, shown) => {
-                state.pending = None;
-                state.pending_start.reset();
-                state.shown = field.map(|field| ShownField::after(shown, field, occupancy));
-            }
-        }
+        state.arrive(field, occupancy);
         if state.shown.is_none() {
             let (generation, field_generation) = (output.generation + 1, output.field_generation + 1);
             *output = PhotonGridOutput { generation, field_generation, ..default() };
@@ -279,19 +256,7 @@ pub(super) fn update_photon_grid(
 
     // 3. Write the output when the field, the blend or a gather setting changed (a waiting field
     //    starts once the blend before it ended).
-    if state.shown.as_ref().is_some_and(|shown| shown.blend.is_done()) && state.pending.is_some() {
-        if let Some(((), from)) = state.pending_start.poll()
-            && let Some((field, _)) = state.pending.as_mut()
-        {
-            field.from = Some(Arc::new(from));
-        }
-        // (A start still being laid out: the shown field holds a frame or two more.)
-        if !state.pending_start.is_running()
-            && let Some((field, occupancy)) = state.pending.take()
-        {
-            state.shown = Some(ShownField::after(state.shown.take(), field, occupancy));
-        }
-    }
+    state.start_waiting();
     if let Some(shown) = &mut state.shown {
         let weight = shown.blend.advance();
         if weight.is_some() || shown.drawn.as_ref() != Some(&settings) || shown.new_buffers {
@@ -324,6 +289,54 @@ pub(super) fn update_photon_grid(
     activity.ready = state.shown.is_some();
     params.status.set_background(GiMethod::PhotonGrid, activity.ready, activity.busy, activity.frames_since_start, activity.updates);
     params.cost.photon_grid_ms = frame_start.elapsed().as_secs_f32() * 1e3;
+}
+
+impl PhotonGridState {
+    /// A finished preparation's field (`None`: an empty scene). While the shown field still blends in,
+    /// the new one waits for its end. When one already waits, the new one replaces it; its start was
+    /// laid out from the waiting field, never shown, so it is laid out again, in the background, from
+    /// where the shown field's blend ends.
+    fn arrive(&mut self, field: Option<NewField>, occupancy: Arc<Vec<u32>>) {
+        let waiting = self.pending.is_some();
+        let waits = |shown: &ShownField, field: &NewField| {
+            (!shown.blend.is_done() || waiting) && field.from.is_some() && shown.layout == field.layout && shown.cell_probe.len() == field.cell_probe.len()
+        };
+        match (field, self.shown.take()) {
+            (Some(mut field), Some(shown)) if waits(&shown, &field) => {
+                if waiting {
+                    let (cell_probe, to) = (field.cell_probe.clone(), field.to.clone());
+                    let (old_cell_probe, old) = (shown.cell_probe.clone(), shown.to.clone());
+                    self.pending_start.start((), move || blend_start(&cell_probe, &to, &old_cell_probe, &old));
+                    field.from = None;
+                }
+                self.pending = Some((field, occupancy));
+                self.shown = Some(shown);
+            }
+            (field, shown) => {
+                self.pending = None;
+                self.pending_start.reset();
+                self.shown = field.map(|field| ShownField::after(shown, field, occupancy));
+            }
+        }
+    }
+
+    /// Shows the waiting field once the shown one's blend ended and its start is laid out (a start still
+    /// being laid out holds the shown field a frame or two more).
+    fn start_waiting(&mut self) {
+        if !self.shown.as_ref().is_some_and(|shown| shown.blend.is_done()) || self.pending.is_none() {
+            return;
+        }
+        if let Some(((), from)) = self.pending_start.poll()
+            && let Some((field, _)) = self.pending.as_mut()
+        {
+            field.from = Some(Arc::new(from));
+        }
+        if !self.pending_start.is_running()
+            && let Some((field, occupancy)) = self.pending.take()
+        {
+            self.shown = Some(ShownField::after(self.shown.take(), field, occupancy));
+        }
+    }
 }
 
 impl ShownField {
@@ -461,4 +474,56 @@ fn prepare(core: &mut PhotonGridCore, snapshot: &SceneSnapshot, key: &FieldKey) 
     core.last_field = Some((layout, cell_probe.clone(), to.clone()));
     let field = NewField { layout, cell_probe, to, from };
     Prepared { field: Some(field), occupancy: Arc::new(core.vgrid.occupancy_words()), activity }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A field over two cells, a probe each, every coefficient `value`; its blend start `from`.
+    fn field(value: f32, from: Option<f32>) -> NewField {
+        let coefficients = |v: f32| Arc::new(vec![Vec4::splat(v); 18]);
+        NewField {
+            layout: GridLayout { origin: Vec3::ZERO, cell: 1.0, dims: UVec3::new(2, 1, 1) },
+            cell_probe: Arc::new(vec![0, 1]),
+            to: coefficients(value),
+            from: from.map(coefficients),
+        }
+    }
+
+    /// Fields that arrive faster than they blend in: the second waits for the first's blend; a third
+    /// replaces it, and starts from where the shown blend ended (not from the waiting field, which was
+    /// never shown), laid out by a background task, not on the main thread.
+    #[test]
+    fn a_field_replacing_a_waiting_one_starts_where_the_shown_blend_ends() {
+        let occupancy = Arc::new(Vec::new());
+        let mut state = PhotonGridState::default();
+        state.arrive(Some(field(1.0, None)), occupancy.clone());
+        assert!(state.shown.as_ref().expect("shown").blend.is_done(), "the first field is shown whole");
+        state.arrive(Some(field(2.0, Some(1.0))), occupancy.clone());
+        let shown = state.shown.as_ref().expect("shown");
+        assert!(!shown.blend.is_done() && shown.from[0] == Vec4::splat(1.0) && shown.to[0] == Vec4::splat(2.0));
+        // The next one waits; the one after replaces it, its start laid out in the background.
+        state.arrive(Some(field(3.0, Some(2.0))), occupancy.clone());
+        assert!(state.pending.is_some() && !state.pending_start.is_running(), "its start was laid out with it");
+        state.arrive(Some(field(4.0, Some(3.0))), occupancy.clone());
+        assert!(state.pending_start.is_running(), "its start is laid out again, from the shown field");
+        assert_eq!(state.pending.as_ref().map(|(f, _)| f.to[0]), Some(Vec4::splat(4.0)));
+        // The shown field blends to its end, then the waiting one starts once its start is ready.
+        while !state.shown.as_ref().expect("shown").blend.is_done() {
+            state.start_waiting();
+            assert!(state.pending.is_some(), "the waiting field waits for the blend before it");
+            state.shown.as_mut().expect("shown").blend.advance();
+        }
+        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
+        while state.pending.is_some() && std::time::Instant::now() < deadline {
+            state.start_waiting();
+            std::thread::sleep(std::time::Duration::from_millis(1));
+        }
+        let shown = state.shown.as_ref().expect("shown");
+        assert!(state.pending.is_none(), "the waiting field started");
+        assert!(!shown.blend.is_done());
+        assert!(shown.from.iter().all(|c| *c == Vec4::splat(2.0)), "it starts where the shown blend ended: {:?}", shown.from[0]);
+        assert!(shown.to.iter().all(|c| *c == Vec4::splat(4.0)));
+    }
 }
