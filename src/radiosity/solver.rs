@@ -641,6 +641,12 @@ impl Changes {
     fn none(nodes: usize) -> Self {
         Self { nodes: vec![false; nodes], unknown: vec![false; nodes], senders: Vec::new() }
     }
+
+    /// The senders recorded for `node` (`senders` sorted).
+    fn senders_of(&self, node: u32) -> impl Iterator<Item = u32> + '_ {
+        let start = self.senders.partition_point(|p| p.0 < node);
+        self.senders[start..].iter().take_while(move |p| p.0 == node).map(|p| p.1)
+    }
 }
 
 /// The links among the segments that do not move, kept between solves while others move (§4 of the
@@ -703,7 +709,6 @@ impl FullLinks {
     }
 }
 
-/// Links a kept-links array is derived from ([`RadiositySolver::relink`]).
 /// What [`RadiositySolver::derive_kept`] made: the kept links and how they differ from their source.
 struct Derived {
     links: Vec<Link>,
@@ -720,6 +725,7 @@ struct Derived {
     unknown: Vec<bool>,
 }
 
+/// Links a kept-links array is derived from ([`RadiositySolver::relink`]).
 #[derive(Clone, Copy)]
 enum KeptSource<'a> {
     /// One `6n²`-bin array per node.
@@ -945,9 +951,14 @@ impl RadiositySolver {
         // Still receivers from moving senders (the bins they fill recorded), then moving receivers from
         // everything.
         let stopped = !reusable && stop();
-        let (still, touched) =
-            if stopped { (0, Vec::new()) } else { self.link_segments(&mut links, threshold, None, true, |r| !kept.excluded[r], |s| kept.excluded[s]) };
-        let (moving, _) = if stopped { (0, Vec::new()) } else { self.link_segments(&mut links, threshold, None, false, |r| kept.excluded[r], |_| true) };
+        let ((still, touched), (moving, _)) = if stopped {
+            ((0, Vec::new()), (0, Vec::new()))
+        } else {
+            (
+                self.link_segments(&mut links, threshold, None, true, |r| !kept.excluded[r], |s| kept.excluded[s]),
+                self.link_segments(&mut links, threshold, None, false, |r| kept.excluded[r], |_| true),
+            )
+        };
         for &slot in &touched {
             changed[slot / per_node] = true;
             let node = (slot / per_node) as u32;
@@ -1006,12 +1017,10 @@ impl RadiositySolver {
                 if excluded[segment[k] as usize] {
                     return (Vec::new(), Vec::new());
                 }
-                let mut needed: Vec<(u32, u32)> = Vec::new();
                 let mut held: Vec<(u32, u32)> = Vec::new();
                 let mut take = |slot: usize, link: Link| {
                     if link.node == NO_LINK {
                     } else if newly(link.node) {
-                        needed.push((segment[link.node as usize], slot as u32));
                         held.push((slot as u32, link.node));
                     } else {
                         out[slot] = link;
@@ -1021,16 +1030,15 @@ impl RadiositySolver {
                     KeptSource::Dense(all) => all[k * per_node..(k + 1) * per_node].iter().enumerate().for_each(|(slot, &link)| take(slot, link)),
                     KeptSource::Sparse(full) => full.node(k).for_each(|(slot, link)| take(slot, link)),
                 }
-                let tagged = needed.iter().map(|&(s, b)| (s, Cone { axis: bins.centre(b), angle: bins.half_angle(b) })).collect();
+                let tagged = held.iter().map(|&(b, node)| (segment[node as usize], Cone { axis: bins.centre(b), angle: bins.half_angle(b) })).collect();
                 held.sort_unstable();
                 (merge_cones(tagged), held)
             })
             .collect();
         let relinked: usize = own.iter().map(|o| o.1.len()).sum();
         let differs: Vec<bool> = own.iter().enumerate().map(|(k, o)| !o.1.is_empty() || excluded[segment[k] as usize]).collect();
-        let (tagged, held): (Vec<Vec<(u32, Cone)>>, Vec<Vec<(u32, u32)>>) = own.into_iter().unzip();
+        let (mut tagged, held): (Vec<Vec<(u32, Cone)>>, Vec<Vec<(u32, u32)>>) = own.into_iter().unzip();
         // Each node's cones hold its descendants' (children come after their parent).
-        let mut tagged = tagged;
         for k in (0..nodes.len()).rev() {
             let node = nodes[k];
             if !node.is_leaf() && node.children().any(|c| !tagged[c as usize].is_empty()) {
@@ -1242,8 +1250,7 @@ impl RadiositySolver {
                 if c.unknown[a as usize] {
                     return false;
                 }
-                let start = c.senders.partition_point(|p| p.0 < a);
-                c.senders[start..].iter().take_while(|p| p.0 == a).all(|&(_, s)| far(reach[s as usize]) && far(then[s as usize]))
+                c.senders_of(a).all(|s| far(reach[s as usize]) && far(then[s as usize]))
             })
         };
         // A leaf below changed ancestors whose changes are all known updates its links in part: its
@@ -1315,14 +1322,12 @@ impl RadiositySolver {
                     // hold (came, went or moved).
                     let mut fresh: Vec<u32> = Vec::new();
                     for a in chain().filter(|&a| c.nodes[a as usize]) {
-                        let start = c.senders.partition_point(|p| p.0 < a);
-                        fresh.extend(c.senders[start..].iter().take_while(|p| p.0 == a).map(|p| p.1));
+                        fresh.extend(c.senders_of(a));
                     }
                     fresh.sort_unstable();
                     fresh.dedup();
                     let is_fresh = |s: u32| fresh.binary_search(&s).is_ok();
-                    let start = c.senders.partition_point(|p| p.0 < leaf);
-                    let own_changed = |s: u32| c.nodes[leaf as usize] && c.senders[start..].iter().take_while(|p| p.0 == leaf).any(|p| p.1 == s);
+                    let own_changed = |s: u32| c.nodes[leaf as usize] && c.senders_of(leaf).any(|held| held == s);
                     // Each bin's link as it was before its holes were filled, and the rank of its sender in
                     // the first-met order (0: the leaf's own link). A bin whose link is not the leaf's own
                     // now keeps it if its sender stands where it stood, is still linked above, and did not
