@@ -4,7 +4,7 @@
 //! ```text
 //! cargo run --release --features tools --example photon_grid_report -- [--section NAME]... [--rounds N] [--docs docs/photon_grid.md]
 //! ```
-//! Sections: `accuracy`, `stages`, `timing` (default: all). Each prints a Markdown table; with
+//! Sections: `accuracy`, `stages`, `timing`, `field_device` (default: all). Each prints a Markdown table; with
 //! `--docs FILE` the table also replaces the text between `<!-- photon_grid_report:NAME -->` and
 //! `<!-- /photon_grid_report:NAME -->` in FILE. Renders run one after another in this process on
 //! whatever Vulkan device wgpu picks (lavapipe on CI machines), at 256², against the committed EXRs of
@@ -18,10 +18,10 @@ use std::process::ExitCode;
 
 use bevy_diffuse_gi::camera::GiMethod;
 use bevy_diffuse_gi::headless::{HeadlessMethod, HeadlessOptions, HeadlessReport};
-use bevy_diffuse_gi::photon_grid::PhotonGridSettings;
+use bevy_diffuse_gi::photon_grid::{FieldDevice, PhotonGridSettings};
 use bevy_diffuse_gi::scenes::StandardScene;
 
-const SECTIONS: &[&str] = &["accuracy", "stages", "timing"];
+const SECTIONS: &[&str] = &["accuracy", "stages", "timing", "field_device"];
 /// Frames of a timed render, and the intervals at its end that the medians use.
 const TIMING_FRAMES: u32 = 16;
 const TIMED_FRAMES: usize = 8;
@@ -39,6 +39,7 @@ fn run() -> Result<(), String> {
             "accuracy" => accuracy(&mut device)?,
             "stages" => stages(&mut device)?,
             "timing" => timing(&mut device, args.rounds)?,
+            "field_device" => field_device(&mut device, args.rounds)?,
             _ => unreachable!("sections are validated"),
         };
         common::publish_section("photon_grid_report", &args, section, &table, &device, started)?;
@@ -184,6 +185,55 @@ fn timing(device: &mut String, rounds: usize) -> Result<String, String> {
             let (a, b) = (common::median(&none), common::median(&with));
             out += &format!("| {name} | {size}² | {a:.1} | {b:.1} | {:.2} |\n", b / a);
         }
+    }
+    Ok(out)
+}
+
+/// The SH field built on the CPU and on the GPU the frame renders with (`FieldDevice`), alternating in
+/// `rounds` rounds: the field's milliseconds in the background task, its probes, and how far apart the
+/// two images are.
+fn field_device(device: &mut String, rounds: usize) -> Result<String, String> {
+    let mut out = String::from(
+        "The SH field of one full preparation at the default preset, built on the CPU (rayon) and on the GPU the\n\
+         frame renders with (`--photon-field cpu|gpu`), alternating; ms of wall time in the background task while\n\
+         frames render (min–max over the rounds), the probes kept, and the GPU's image against the CPU's.\n\n\
+         | scene | CPU field ms | GPU field ms | GPU / CPU | probes CPU / GPU | block RMSE between the images | energy GPU / CPU |\n\
+         |---|---|---|---|---|---|---|\n",
+    );
+    let range = |v: &[f64]| format!("{:.0}–{:.0}", v.iter().copied().fold(f64::INFINITY, f64::min), v.iter().copied().fold(0.0, f64::max));
+    for (scene, name) in [
+        (StandardScene::Cornell, "cornell"),
+        (StandardScene::Cellar, "cellar"),
+        (StandardScene::SponzaLike, "sponza_like"),
+        (StandardScene::Dynamic, "dynamic"),
+    ] {
+        let (mut cpu_ms, mut gpu_ms) = (Vec::new(), Vec::new());
+        let mut last = None;
+        for _ in 0..rounds.max(1) {
+            let run = |device: &mut String, field_device| {
+                common::report_render(device, &options(scene.clone(), PhotonGridSettings { field_device, ..PhotonGridSettings::MEDIUM }))
+            };
+            let cpu = run(device, FieldDevice::Cpu)?;
+            let gpu = run(device, FieldDevice::Gpu)?;
+            if gpu.sidecar["photon_grid"]["field_on_gpu"].as_bool() != Some(true) {
+                return Err(format!("{name}: the GPU did not build the field (see the log)"));
+            }
+            cpu_ms.push(preparation(&cpu).ms[3]);
+            gpu_ms.push(preparation(&gpu).ms[3]);
+            last = Some((cpu, gpu));
+        }
+        let (cpu, gpu) = last.expect("one round at least");
+        let m = common::report_compare(&gpu.image, &cpu.image)?;
+        out += &format!(
+            "| {name} | {} | {} | {:.2} | {} / {} | {:.4} | {:.4} |\n",
+            range(&cpu_ms),
+            range(&gpu_ms),
+            common::median(&gpu_ms) / common::median(&cpu_ms),
+            preparation(&cpu).probes,
+            preparation(&gpu).probes,
+            m.block_relative_rmse,
+            m.energy_ratio
+        );
     }
     Ok(out)
 }

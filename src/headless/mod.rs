@@ -672,7 +672,7 @@ fn drive(
                             "boundary_v_cells": a.boundary_v_cells, "probes": a.probes, "probes_inside": a.inside,
                             "photons_stored": a.photons, "paths": a.stats.paths, "updates": a.updates, "busy": a.busy,
                             "voxelize_ms": t.voxelize_ms, "trace_ms": t.trace_ms, "rgrid_ms": t.rgrid_ms,
-                            "field_ms": t.field_ms, "paths_traced": a.paths_traced, "rays": a.rays, "rays_marched": a.rays_marched, "kept_bytes": a.kept_bytes }),
+                            "field_ms": t.field_ms, "paths_traced": a.paths_traced, "rays": a.rays, "rays_marched": a.rays_marched, "kept_bytes": a.kept_bytes, "field_on_gpu": a.field_on_gpu }),
                 );
             }
             let mut outcome = headless.outcome.lock().expect("outcome lock");

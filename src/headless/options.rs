@@ -333,6 +333,9 @@ pub struct PhotonGridArgs {
     /// Obscurance distance in metres (0 = off)
     #[arg(long, value_name = "D")]
     pub photon_obscurance: Option<f32>,
+    /// Where the SH field is built: auto (the GPU on hardware GPUs), cpu or gpu
+    #[arg(long, value_parser = ["auto", "cpu", "gpu"])]
+    pub photon_field: Option<String>,
 }
 
 impl PhotonGridArgs {
@@ -346,6 +349,7 @@ impl PhotonGridArgs {
             photon_filter_levels,
             photon_r_max,
             photon_obscurance,
+            photon_field,
         } = self;
         s.resolution = photon_resolution.unwrap_or(s.resolution);
         s.photons = photon_count.unwrap_or(s.photons);
@@ -355,6 +359,14 @@ impl PhotonGridArgs {
         s.filter_levels = photon_filter_levels.unwrap_or(s.filter_levels);
         s.r_max = photon_r_max.unwrap_or(s.r_max);
         s.obscurance_distance = photon_obscurance.unwrap_or(s.obscurance_distance);
+        if let Some(device) = photon_field {
+            use crate::photon_grid::FieldDevice as D;
+            s.field_device = match device.as_str() {
+                "cpu" => D::Cpu,
+                "gpu" => D::Gpu,
+                _ => D::Auto,
+            };
+        }
     }
 }
 

@@ -6,7 +6,10 @@ use std::sync::Arc;
 use bevy::diagnostic::DiagnosticPath;
 use bevy::prelude::*;
 use bevy::render::extract_resource::ExtractResource;
+use bevy::render::renderer::{RenderAdapterInfo, RenderDevice, RenderQueue};
 
+use super::field_gpu::{FieldGpu, FieldPipeline};
+use super::settings::FieldDevice;
 use super::PhotonGridSettings;
 use super::grid::{self, FieldParams, GridLayout, PhotonPaths, PhotonStats, ProbeRays, RGrid, ShField, TraceParams, VGrid};
 use super::prepare::PhotonGridUniform;
@@ -69,6 +72,8 @@ pub struct PhotonGridActivity {
     pub kept_bytes: usize,
     /// The stages of the last update, ms (zero for one that did not run).
     pub times: PhotonGridTimes,
+    /// Whether the last update built its SH field on the GPU ([`PhotonGridSettings::field_device`]).
+    pub field_on_gpu: bool,
     /// Preparations finished so far (background tasks). A change of a gather-only setting
     /// (`intensity`, `r_max`, `gather_samples`, `obscurance_distance`) runs none.
     pub updates: u64,
@@ -149,6 +154,11 @@ pub struct PhotonGridState {
     /// when that field replaced another waiting one (whose start it had been laid out from, and which
     /// was never shown): the main thread never mixes fields itself.
     pending_start: BackgroundJob<(), Vec<Vec4>>,
+    /// The GPU's SH-field pass, made when a setting first asks for it; `None` before, and without a
+    /// render device.
+    field_gpu: Option<FieldGpu>,
+    /// Whether the GPU's field failed once (warned once; the CPU builds it from then on).
+    field_gpu_failed: bool,
 }
 
 /// Everything the preparation depends on: the scene and the settings it reads (not the gather-only
@@ -161,6 +171,8 @@ struct Prepared {
     field: Option<NewField>,
     occupancy: Arc<Vec<u32>>,
     activity: PhotonGridActivity,
+    /// Why the GPU could not build the field it was asked to build (the CPU built it).
+    field_gpu_error: Option<String>,
 }
 
 /// A new field, ready to draw: its probes' coefficients flattened, and where its blend starts when the
@@ -208,6 +220,7 @@ pub(super) fn update_photon_grid(
     mut state: ResMut<PhotonGridState>,
     mut output: ResMut<PhotonGridOutput>,
     mut activity: ResMut<PhotonGridActivity>,
+    gpu: Option<(Res<RenderDevice>, Res<RenderQueue>, Res<RenderAdapterInfo>, Res<FieldPipeline>)>,
 ) {
     params.cost.photon_grid_ms = 0.0;
     let (settings, scene) = match params.method_use(GiMethod::PhotonGrid) {
@@ -231,7 +244,12 @@ pub(super) fn update_photon_grid(
 
     // 1. A finished preparation: its grids come back, its field is blended in.
     if let Some(prepared) = state.job.poll() {
-        let Prepared { field, occupancy, activity: done } = prepared;
+        let Prepared { field, occupancy, activity: done, field_gpu_error } = prepared;
+        if let Some(error) = field_gpu_error
+            && !std::mem::replace(&mut state.field_gpu_failed, true)
+        {
+            warn!("PhotonGridSettings::field_device: the GPU cannot build the SH field ({error}); it is built on the CPU");
+        }
         let t = done.times;
         background::record_stages(
             &mut params.diagnostics,
@@ -248,7 +266,16 @@ pub(super) fn update_photon_grid(
     // 2. The scene or a preparation setting changed since the last preparation began: start the next.
     if state.job.wants(&key) {
         let snapshot = snapshot.clone();
-        state.job.start(&key, move |core, key| prepare(core, &snapshot, key));
+        let on_gpu = match settings.field_device {
+            FieldDevice::Cpu => false,
+            FieldDevice::Gpu => true,
+            FieldDevice::Auto => gpu.as_ref().is_some_and(|(_, _, adapter, _)| adapter.device_type != wgpu_types::DeviceType::Cpu),
+        };
+        if on_gpu && state.field_gpu.is_none() {
+            state.field_gpu = gpu.as_ref().map(|(device, queue, _, pipeline)| FieldGpu::new((**device).clone(), (**queue).clone(), (**pipeline).clone()));
+        }
+        let field_gpu = state.field_gpu.clone().filter(|_| on_gpu && !state.field_gpu_failed);
+        state.job.start(&key, move |core, key| prepare(core, &snapshot, key, field_gpu.as_ref()));
         activity.frames_since_start = 0;
     } else {
         activity.frames_since_start += 1;
@@ -372,12 +399,12 @@ fn blend_start(cell_probe: &[u32], to: &[Vec4], old_cell_probe: &[u32], old: &[V
 
 /// One preparation, on a background task: the V-grid (only when geometry or the resolution changed
 /// since `core` was built), photons, R-grid and SH field.
-fn prepare(core: &mut PhotonGridCore, snapshot: &SceneSnapshot, key: &FieldKey) -> Prepared {
+fn prepare(core: &mut PhotonGridCore, snapshot: &SceneSnapshot, key: &FieldKey, field_gpu: Option<&FieldGpu>) -> Prepared {
     let settings = &key.settings;
     let exposure = key.scene.exposure();
     let mut times = PhotonGridTimes::default();
     let Some((lo, hi)) = snapshot.bounds() else {
-        return Prepared { field: None, occupancy: Arc::default(), activity: PhotonGridActivity::default() };
+        return Prepared { field: None, occupancy: Arc::default(), activity: PhotonGridActivity::default(), field_gpu_error: None };
     };
     let layout = GridLayout::fit(lo, hi, settings.resolution);
 
@@ -442,7 +469,18 @@ fn prepare(core: &mut PhotonGridCore, snapshot: &SceneSnapshot, key: &FieldKey) 
         filter_levels: settings.filter_levels,
     };
     let changed_geometry = changed.as_ref().map(|(boxes, _)| boxes.as_slice());
-    let (field, rays_marched) = ShField::build_reusing(&core.vgrid, &rgrid, environment, &field_params, &mut core.rays, changed_geometry);
+    // On the GPU every ray is marched (no rays kept); on the CPU, after a move, only those near it.
+    let on_gpu = field_gpu.map(|gpu| gpu.build(&core.vgrid, &rgrid, environment, &field_params));
+    let field_gpu_error = on_gpu.as_ref().and_then(|r| r.as_ref().err().cloned());
+    let field_on_gpu = matches!(on_gpu, Some(Ok(_)));
+    let (field, rays_marched) = match on_gpu {
+        Some(Ok(field)) => {
+            core.rays = ProbeRays::default();
+            let rays = (field.coefficients.len() + field.inside as usize) * settings.sh_directions as usize;
+            (field, rays)
+        }
+        _ => ShField::build_reusing(&core.vgrid, &rgrid, environment, &field_params, &mut core.rays, changed_geometry),
+    };
     if !core.keep_records {
         core.rays = ProbeRays::default();
     }
@@ -461,6 +499,7 @@ fn prepare(core: &mut PhotonGridCore, snapshot: &SceneSnapshot, key: &FieldKey) 
         rays_marched,
         kept_bytes: core.paths.bytes() + core.rays.bytes(),
         times,
+        field_on_gpu,
         ..default()
     };
     // The field flattened, and where its blend starts: the last field at the same cells.
@@ -473,7 +512,7 @@ fn prepare(core: &mut PhotonGridCore, snapshot: &SceneSnapshot, key: &FieldKey) 
         .map(|(_, old_cells, old)| Arc::new(blend_start(&cell_probe, &to, old_cells, old)));
     core.last_field = Some((layout, cell_probe.clone(), to.clone()));
     let field = NewField { layout, cell_probe, to, from };
-    Prepared { field: Some(field), occupancy: Arc::new(core.vgrid.occupancy_words()), activity }
+    Prepared { field: Some(field), occupancy: Arc::new(core.vgrid.occupancy_words()), activity, field_gpu_error }
 }
 
 #[cfg(test)]

@@ -183,6 +183,11 @@ impl VGrid {
         Self { layout: Some(layout), bits, cells, sh_boundary }
     }
 
+    /// The boundary V-cells, sorted by linear index, with their data (for the GPU's field).
+    pub(super) fn boundary_data(&self) -> &[(u32, VCell)] {
+        &self.cells
+    }
+
     /// Boundary V-cells.
     pub fn boundary_cells(&self) -> usize {
         self.cells.len()
@@ -1021,7 +1026,7 @@ const INSIDE_FRACTION: f32 = 0.1;
 
 /// Where each probe ray of a field met the V-grid, kept so that the next field after a local change
 /// marches only the rays that run through it ([`ShField::build_reusing`]): per probe candidate (an SH
-/// cell, sorted), per direction, the linear index of the V-cell hit or [`RAY_MISSED`].
+/// cell, sorted), per direction, the linear index of the V-cell hit, [`RAY_MISSED`] or [`RAY_NOT_MARCHED`].
 #[derive(Clone, Debug, Default)]
 pub struct ProbeRays {
     layout: Option<GridLayout>,
@@ -1033,11 +1038,47 @@ pub struct ProbeRays {
 /// A probe ray that left the grid.
 pub const RAY_MISSED: u32 = u32::MAX;
 
+/// A probe ray not marched: its probe was found inside solid geometry before it (the next field
+/// marches it).
+const RAY_NOT_MARCHED: u32 = u32::MAX - 1;
+
 impl ProbeRays {
     /// Bytes held.
     pub fn bytes(&self) -> usize {
         (self.cells.len() + self.hits.len()) * 4
     }
+}
+
+/// The SH cells that get a probe: the boundary cells and their 26 neighbours (linear indices, sorted).
+pub(super) fn probe_cells(vgrid: &VGrid, layout: &GridLayout) -> Vec<usize> {
+    let dims = layout.dims.as_ivec3();
+    (0..layout.cell_count())
+        .into_par_iter()
+        .filter(|&i| {
+            let c = layout.coords(i).as_ivec3();
+            (-1..=1).any(|z| {
+                (-1..=1).any(|y| {
+                    (-1..=1).any(|x| {
+                        let n = c + IVec3::new(x, y, z);
+                        n.cmpge(IVec3::ZERO).all() && n.cmplt(dims).all() && vgrid.sh_boundary[layout.index(n.as_uvec3())]
+                    })
+                })
+            })
+        })
+        .collect()
+}
+
+/// The count of a probe's `directions` rays meeting the back of a surface from which the probe lies
+/// inside solid geometry ([`INSIDE_FRACTION`] of them): its remaining rays need not be marched.
+pub(super) fn inside_limit(directions: u32) -> u32 {
+    (INSIDE_FRACTION * directions as f32).ceil() as u32
+}
+
+/// A probe's coefficients, unless they are not finite or [`inside_limit`] of its `directions` rays met
+/// the back of a surface (the probe lies inside solid geometry).
+pub(super) fn kept_probe(coefficients: [Vec4; 9], back: u32, directions: u32) -> Option<[Vec4; 9]> {
+    let finite = coefficients.iter().all(|c| c.is_finite());
+    (finite && back < inside_limit(directions)).then_some(coefficients)
 }
 
 /// The V-cell (linear index) a probe ray from `c` along `d` meets first, or [`RAY_MISSED`].
@@ -1120,26 +1161,12 @@ impl ShField {
             *rays = ProbeRays::default();
             return (Self::default(), 0);
         };
-        let dims = layout.dims.as_ivec3();
-        // Boundary cells and their 26 neighbours.
-        let probes: Vec<usize> = (0..layout.cell_count())
-            .into_par_iter()
-            .filter(|&i| {
-                let c = layout.coords(i).as_ivec3();
-                (-1..=1).any(|z| {
-                    (-1..=1).any(|y| {
-                        (-1..=1).any(|x| {
-                            let n = c + IVec3::new(x, y, z);
-                            n.cmpge(IVec3::ZERO).all() && n.cmplt(dims).all() && vgrid.sh_boundary[layout.index(n.as_uvec3())]
-                        })
-                    })
-                })
-            })
-            .collect();
+        let probes = probe_cells(vgrid, &layout);
         let n = params.directions.max(1);
         let directions: Vec<Vec3> = (0..n).map(|i| fibonacci_sphere(i, n)).collect();
         let bases: Vec<[f32; 9]> = directions.iter().map(|&d| basis(d)).collect();
         let weight = 4.0 * PI / n as f32;
+        let limit = inside_limit(n);
         // The kept rays, when they were made on this grid with these directions.
         let margin = layout.change_margin();
         let boxes: Option<Vec<(Vec3, Vec3)>> = changed
@@ -1162,6 +1189,10 @@ impl ShField {
                 let mut back = 0u32;
                 for (j, &d) in directions.iter().enumerate() {
                     let hit = match kept {
+                        Some((_, old)) if old[j] == RAY_NOT_MARCHED => {
+                            marched += 1;
+                            probe_hit(vgrid, &layout, c, d)
+                        }
                         Some((boxes, old)) => {
                             let h = old[j];
                             let end = if h == RAY_MISSED {
@@ -1184,13 +1215,17 @@ impl ShField {
                     hits.push(hit);
                     let (radiance, distance, backface) = probe_ray(vgrid, rgrid, env, c, d, hit, params);
                     back += u32::from(backface);
+                    if back >= limit {
+                        // Inside solid geometry: dropped whatever its other rays meet.
+                        hits.resize(n as usize, RAY_NOT_MARCHED);
+                        break;
+                    }
                     let value = radiance.extend(distance) * weight;
                     for (c, y) in coefficients.iter_mut().zip(bases[j]) {
                         *c += value * y;
                     }
                 }
-                let finite = coefficients.iter().all(|c| c.is_finite());
-                (hits, marched, (finite && (back as f32) < INSIDE_FRACTION * n as f32).then_some(coefficients))
+                (hits, marched, kept_probe(coefficients, back, n))
             })
             .collect();
         let mut cell_probe = vec![u32::MAX; layout.cell_count()];
@@ -1212,6 +1247,24 @@ impl ShField {
         }
         *rays = kept;
         (Self { layout: Some(layout), cell_probe, coefficients, inside }, marched)
+    }
+
+    /// The field from each probe cell's coefficients and the count of its rays that met the back of a
+    /// surface, in the order of `probes` ([`probe_cells`]): the probes inside solid geometry dropped.
+    pub(super) fn from_probes(layout: GridLayout, probes: &[usize], traced: Vec<([Vec4; 9], u32)>, directions: u32) -> Self {
+        let mut cell_probe = vec![u32::MAX; layout.cell_count()];
+        let mut coefficients = Vec::with_capacity(probes.len());
+        let mut inside = 0;
+        for (&i, (c, back)) in probes.iter().zip(traced) {
+            match kept_probe(c, back, directions) {
+                Some(c) => {
+                    cell_probe[i] = coefficients.len() as u32;
+                    coefficients.push(c);
+                }
+                None => inside += 1,
+            }
+        }
+        Self { layout: Some(layout), cell_probe, coefficients, inside }
     }
 
     /// The interpolated coefficients at `x` on a surface with unit normal `n` (§4.1): the probes of the
@@ -1371,7 +1424,11 @@ mod tests {
         let rgrid = RGrid::new(layout, accumulate_sorted(&paths.photons, layout.cell_count()), 6);
         let mut rays = ProbeRays::default();
         let (_, marched) = ShField::build_reusing(&vgrid, &rgrid, None, &field_params, &mut rays, None);
-        assert_eq!(marched, rays.hits.len(), "a first field marches every ray");
+        // Every ray but those of the probes found inside solid geometry (outside the closed box here)
+        // before them.
+        let not_marched = rays.hits.iter().filter(|&&h| h == RAY_NOT_MARCHED).count();
+        assert_eq!(marched + not_marched, rays.hits.len(), "a first field marches every ray of the probes it keeps");
+        assert!(not_marched > rays.hits.len() / 4, "{not_marched} of {} rays of probes inside walls marched", rays.hits.len());
 
         let before = snapshot.instance(100).unwrap().bounds;
         snapshot.set_instance_transform(100, bevy::math::Affine3A::from_translation(Vec3::new(-0.45, -0.85, 0.4)));

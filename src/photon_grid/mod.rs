@@ -14,7 +14,7 @@
 //! # }
 //! ```
 //!
-//! # Algorithm (the preparation stage, §3, on the CPU with rayon: [`grid`])
+//! # Algorithm (the preparation stage, §3, in a background task: on the CPU with rayon, [`grid`]; the SH field on the GPU too, `field_gpu.rs`)
 //! 1. **Grids** (§3.1): the scene's box is cut into cubic SH-grid cells,
 //!    [`resolution`](PhotonGridSettings::resolution) along its longest side, and each into 4 × 4 × 4
 //!    V-grid cells. Every triangle marks the V-cells it overlaps (a triangle–box test) as *boundary
@@ -40,7 +40,15 @@
 //!    face area bounds the ray's footprint `4π d² / (N_sh cos β)` (§3.4.3, interpolated between two
 //!    levels, no coarser than [`filter_levels`](PhotonGridSettings::filter_levels)). Rays that leave the grid see the environment map. The radiance and the distance are
 //!    projected on nine SH coefficients (bands 0–2) by Eq. 1 (§3.4.4: the distance is the fourth
-//!    component).
+//!    component). Where [`field_device`](PhotonGridSettings::field_device) says so (by default on
+//!    hardware GPUs), this stage runs on the GPU, as in the paper: the background task uploads the
+//!    V-grid, the R-grid and the directions, dispatches `shaders/photon_grid/field.wgsl` (a workgroup
+//!    per eight probes, each probe's directions split over eight threads, so that neighbouring threads
+//!    march one direction from neighbouring probes) in chunks of about 2¹⁸ rays, waiting for each so
+//!    that the frame's own work runs between them, and reads the coefficients back; the rest of the
+//!    preparation is the CPU's either way. A probe whose rays have met the back of a surface
+//!    [`inside_limit`](grid::inside_limit) times is dropped at once, without marching its other rays
+//!    (on both; the field is the same).
 //! 5. **Final gather** (§4, `shaders/photon_grid/gather.wgsl`, per pixel of each view): the
 //!    coefficients of the 27 cells around the pixel's surface point, weighted by
 //!    `w_sh(d) = 2d³/r³ − 3d²/r² + 1` with `r` = [`r_max`](PhotonGridSettings::r_max) cells (1.75, the
@@ -52,7 +60,8 @@
 //!
 //! # Where this departs from the paper, and why
 //! * **Bevy's rasteriser** sees the primary surfaces, and the preparation runs on the CPU's threads
-//!   (with the snapshot's BVH for photons), not in CUDA: see *Cost*.
+//!   (with the snapshot's BVH for photons), not in CUDA, except the SH field where the GPU builds it:
+//!   see *Cost*.
 //! * **Face radiance**: the paper's face value `Σ f_r δ Φ / A` reads a Lambertian plane across a cell at
 //!   half its radiance (only half the flux of cosine-distributed directions leaves through the face it
 //!   faces: `E[cos²θ] = ½`), and its blend of visible faces by the angle to their centres reads a floor
@@ -131,16 +140,32 @@
 //! rest is reading every ray's radiance again), the preparation 1.5–2.2 → 0.65–0.9 s; the records
 //! take 41 MiB (`cornell`: 48 MiB).
 //!
-//! Why the CPU: this is the first version of the method; its stages are written as the GPU would run
-//! them (one task per photon, per non-empty cell, per probe, no atomics), so that a compute port can
-//! follow them one by one, starting with the SH field. (Not measured on a GPU: no GPU machine was lent
-//! to this work.)
+//! **The SH field on the GPU or the CPU** (`photon_grid_report --section field_device`, 256², two
+//! alternating rounds, the field's milliseconds in the background task while frames render, lavapipe on
+//! the same two cores as the CPU path): `cornell` 2 048–2 180 on the CPU against 2 443–3 049 on the GPU,
+//! `cellar` 393–442 against 1 036–1 155, `sponza_like` 675–715 against 1 339–1 439, `dynamic`
+//! 1 158–1 280 against 2 268–2 784. On a CPU rasteriser the CPU path is faster (scalar walks on the
+//! same cores, against 8-wide SIMD batches that last as long as their longest walk), so
+//! [`FieldDevice::Auto`] builds there on the CPU; on hardware GPUs it builds on the GPU, as the paper
+//! does (its Table 1: milliseconds on a 2011 GPU). That choice is not measured: no session of this
+//! work had a hardware GPU. The two fields agree (block RMSE 0.0000–0.0002 between the images; 20 of
+//! `cornell`'s 11 523 probes cross the inside threshold on one and not the other, where a ray grazes a
+//! surface; `tests/gpu_photon_grid.rs`). The pipeline is made by the render world's pipeline cache when
+//! a preparation first asks for it, and handed to the background task.
+//! Dropping the probes inside solid geometry after `inside_limit` back faces took `cornell`'s CPU field
+//! from 2 273–2 358 ms (4.9 million rays marched) to 1 817–2 047 ms (3.4 million), with the same field.
+//! The other stages stay on the CPU: they are written as the GPU would run them (one task per photon,
+//! per non-empty cell, no atomics), so that a compute port can follow.
 //!
 //! # Known issues
 //! * A moving light costs a whole preparation (seconds at the high preset); a moving mesh the paths
 //!   and probe rays near it, but still the V-grid, the R-grid and every probe ray's radiance (0.5–0.8 s
 //!   in `dynamic` at the default). The frame does not wait for it, but the light lags by one
-//!   preparation. The paper's GPU preparation is not done (no GPU was lent to measure it on).
+//!   preparation. Of the paper's GPU preparation only the SH field is ported; photon tracing, the
+//!   R-grid and the V-grid stay on the CPU. The GPU's field marches every probe ray after a move (the
+//!   CPU's only those near it).
+//! * On a CPU rasteriser, `FieldDevice::Gpu` is slower than the CPU, and each of its chunks (19 for
+//!   `cornell`'s 2.2–2.4 s on lavapipe) delays the frame queued behind it.
 //! * After a mesh moved, the preparation keeps 40–50 MiB of records at the default preset (about 100
 //!   bytes a photon path and 4 a probe ray; some 170 MiB at the high preset) until the method is
 //!   switched off.
@@ -152,6 +177,7 @@
 //!   keeps distances up to four cells only.
 
 mod extract;
+mod field_gpu;
 pub mod grid;
 mod prepare;
 mod render;
@@ -165,7 +191,7 @@ pub use extract::{
     PhotonGridOutput, PhotonGridState, PhotonGridTimes,
 };
 pub use prepare::PhotonGridUniform;
-pub use settings::PhotonGridSettings;
+pub use settings::{FieldDevice, PhotonGridSettings};
 
 use crate::camera::GiMethod;
 use crate::method::{GiMethodModule, GpuCapabilities, Shortfall};
@@ -183,8 +209,17 @@ impl Plugin for PhotonGridPlugin {
             &[DIAGNOSTIC_VOXELIZE, DIAGNOSTIC_TRACE, DIAGNOSTIC_RGRID, DIAGNOSTIC_FIELD],
             extract::update_photon_grid,
         );
+        // The SH field's compute pipeline: made by the render world when a preparation first asks for
+        // it, used from the main world's background task.
+        let field_shader = crate::add_shader(app, "photon_grid/field.wgsl", include_str!("../../shaders/photon_grid/field.wgsl"));
+        let field_pipeline = field_gpu::FieldPipeline::default();
+        app.insert_resource(field_pipeline.clone());
         if let Some(render_app) = app.get_sub_app_mut(bevy::render::RenderApp) {
-            render_app.insert_resource(prepare::PhotonGridShaders { gather: shader });
+            render_app
+                .insert_resource(prepare::PhotonGridShaders { gather: shader })
+                .insert_resource(field_pipeline)
+                .insert_resource(field_gpu::FieldPipelineSource::new(field_shader))
+                .add_systems(bevy::render::Render, field_gpu::make_field_pipeline.in_set(bevy::render::RenderSystems::Prepare));
         }
     }
 

@@ -58,6 +58,28 @@ pub struct PhotonGridSettings {
     pub obscurance_distance: f32,
     /// Multiplies the indirect light. Range 0–1000; default 1. Cost: none; a change runs no preparation.
     pub intensity: f32,
+    /// Where the SH field (§3.4, most of the preparation's time) is built: on the CPU's threads or on
+    /// the GPU the frame renders with (as the paper does), from the background task either way. Default
+    /// [`FieldDevice::Auto`]. The two give the same field (up to the order of floating-point sums).
+    /// Cost: see [`FieldDevice`]; a change: a new field, in the background (the photons are kept).
+    pub field_device: FieldDevice,
+}
+
+/// Where the photon grid builds its SH field ([`PhotonGridSettings::field_device`]).
+#[derive(Reflect, Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum FieldDevice {
+    /// The GPU on hardware GPUs (not measured: no hardware GPU was at hand), the CPU on software
+    /// rasterisers (lavapipe, where the CPU measured faster: `cornell` 2.0–2.2 s against 2.4–3.0 s,
+    /// `cellar` 0.4 s against 1.0–1.2 s; `docs/photon_grid.md`).
+    #[default]
+    Auto,
+    /// The CPU's threads (rayon), in the background task. After a mesh moved, only the probe rays that
+    /// ran near it are marched again (4 bytes a ray are kept for that).
+    Cpu,
+    /// The GPU, dispatched from the background task in chunks of about 2¹⁸ rays (the frame's own work
+    /// runs between them), every ray each time. A device without the limits the pass needs (eight
+    /// storage buffers per stage, 9 KiB of workgroup memory) builds on the CPU, with one warning.
+    Gpu,
 }
 
 impl PhotonGridSettings {
@@ -72,6 +94,7 @@ impl PhotonGridSettings {
         r_max: 1.75,
         obscurance_distance: 0.0,
         intensity: 1.0,
+        field_device: FieldDevice::Auto,
     };
     /// 32 cells, 262 144 photons, eight reflections, 256 probe directions (the default).
     pub const MEDIUM: Self = Self { resolution: 32, photons: 262_144, max_reflections: 8, sh_directions: 256, ..Self::LOW };

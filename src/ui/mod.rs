@@ -472,6 +472,13 @@ pub fn photon_grid_ui(ui: &mut egui::Ui, settings: &mut Mut<PhotonGridSettings>)
     ui.add(egui::Slider::new(&mut v.r_max, 1.0..=3.0).text("r_max (cells)"));
     ui.add(egui::Slider::new(&mut v.obscurance_distance, 0.0..=1000.0).logarithmic(true).text("obscurance distance (m, 0 off)"));
     ui.add(egui::Slider::new(&mut v.intensity, 0.0..=1000.0).logarithmic(true).text("intensity"));
+    ui.horizontal(|ui| {
+        use crate::photon_grid::FieldDevice;
+        ui.label("SH field built on");
+        for (name, device) in [("auto", FieldDevice::Auto), ("CPU", FieldDevice::Cpu), ("GPU", FieldDevice::Gpu)] {
+            ui.radio_value(&mut v.field_device, device, name);
+        }
+    });
     commit(v, settings);
 }
 
@@ -483,8 +490,12 @@ fn photon_grid_activity_ui(ui: &mut egui::Ui, a: &PhotonGridActivity) {
         a.dims.x, a.dims.y, a.dims.z, a.boundary_sh_cells, a.boundary_v_cells, a.probes, a.inside, a.photons
     ));
     ui.label(format!(
-        "in the background: voxelize {:.1} ms, photons {:.1} ms, R-grid {:.1} ms, SH field {:.1} ms",
-        t.voxelize_ms, t.trace_ms, t.rgrid_ms, t.field_ms
+        "in the background: voxelize {:.1} ms, photons {:.1} ms, R-grid {:.1} ms, SH field {:.1} ms ({})",
+        t.voxelize_ms,
+        t.trace_ms,
+        t.rgrid_ms,
+        t.field_ms,
+        if a.field_on_gpu { "GPU" } else { "CPU" }
     ));
 }
 
