@@ -947,5 +947,8 @@ fn track_dynamic_scene(
         scene.paused = false;
     }
     let ms = cost.total_ms();
+    if ms > 1.0 {
+        debug!("frame {}: the plugin's main-thread work took {ms:.2} ms: {:?}", clock.frame, *cost);
+    }
     headless.main_thread_ms.push(ms);
 }
