@@ -273,6 +273,9 @@ pub(super) fn update_photon_grid(
         };
         if on_gpu && state.field_gpu.is_none() {
             state.field_gpu = gpu.as_ref().map(|(device, queue, _, pipeline)| FieldGpu::new((**device).clone(), (**queue).clone(), (**pipeline).clone()));
+            if state.field_gpu.is_none() && !std::mem::replace(&mut state.field_gpu_failed, true) {
+                warn!("PhotonGridSettings::field_device: no render device to build the SH field on; it is built on the CPU");
+            }
         }
         let field_gpu = state.field_gpu.clone().filter(|_| on_gpu && !state.field_gpu_failed);
         state.job.start(&key, move |core, key| prepare(core, &snapshot, key, field_gpu.as_ref()));
