@@ -74,6 +74,8 @@ pub struct PhotonGridActivity {
     pub times: PhotonGridTimes,
     /// Whether the last update built its SH field on the GPU ([`PhotonGridSettings::field_device`]).
     pub field_on_gpu: bool,
+    /// The last field's time per probe ray on each device, what [`FieldDevice::Auto`] chooses by.
+    pub field_timings: FieldTimings,
     /// Preparations finished so far (background tasks). A change of a gather-only setting
     /// (`intensity`, `r_max`, `gather_samples`, `obscurance_distance`) runs none.
     pub updates: u64,
@@ -159,11 +161,34 @@ pub struct PhotonGridState {
     field_gpu: Option<FieldGpu>,
     /// Whether the GPU's field failed once (warned once; the CPU builds it from then on).
     field_gpu_failed: bool,
+    /// The last field's time per probe ray on each device.
+    field_timings: FieldTimings,
 }
 
 /// Everything the preparation depends on: the scene and the settings it reads (not the gather-only
 /// ones).
 type FieldKey = JobKey<PhotonGridSettings>;
+
+/// Milliseconds per probe ray of the last SH field built on the CPU and on the GPU (`None`: none yet).
+/// After a move the CPU marches only the rays near it, so its time per ray is then that of a partial
+/// field: what a field costs it in that regime.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct FieldTimings {
+    pub cpu: Option<f32>,
+    pub gpu: Option<f32>,
+}
+
+impl FieldTimings {
+    /// Where [`FieldDevice::Auto`] builds the next field on a hardware GPU: on the GPU first, on the
+    /// CPU once to compare, then on whichever built its last field faster per ray.
+    pub fn auto_on_gpu(&self) -> bool {
+        match (self.cpu, self.gpu) {
+            (_, None) => true,
+            (None, Some(_)) => false,
+            (Some(cpu), Some(gpu)) => gpu <= cpu,
+        }
+    }
+}
 
 /// What a background preparation hands back (its grids go back to the state).
 struct Prepared {
@@ -250,12 +275,21 @@ pub(super) fn update_photon_grid(
         {
             warn!("PhotonGridSettings::field_device: the GPU cannot build the SH field ({error}); it is built on the CPU");
         }
+        if done.rays > 0 && done.times.field_ms > 0.0 {
+            let per_ray = done.times.field_ms / done.rays as f32;
+            *(if done.field_on_gpu { &mut state.field_timings.gpu } else { &mut state.field_timings.cpu }) = Some(per_ray);
+        }
         let t = done.times;
         background::record_stages(
             &mut params.diagnostics,
             &[(&DIAGNOSTIC_VOXELIZE, t.voxelize_ms), (&DIAGNOSTIC_TRACE, t.trace_ms), (&DIAGNOSTIC_RGRID, t.rgrid_ms), (&DIAGNOSTIC_FIELD, t.field_ms)],
         );
-        *activity = PhotonGridActivity { updates: activity.updates + 1, frames_since_start: activity.frames_since_start, ..done };
+        *activity = PhotonGridActivity {
+            updates: activity.updates + 1,
+            frames_since_start: activity.frames_since_start,
+            field_timings: state.field_timings,
+            ..done
+        };
         state.arrive(field, occupancy);
         if state.shown.is_none() {
             let (generation, field_generation) = (output.generation + 1, output.field_generation + 1);
@@ -269,7 +303,9 @@ pub(super) fn update_photon_grid(
         let on_gpu = match settings.field_device {
             FieldDevice::Cpu => false,
             FieldDevice::Gpu => true,
-            FieldDevice::Auto => gpu.as_ref().is_some_and(|(_, _, adapter, _)| adapter.device_type != wgpu_types::DeviceType::Cpu),
+            FieldDevice::Auto => gpu.as_ref().is_some_and(|(_, _, adapter, _)| {
+                adapter.device_type != wgpu_types::DeviceType::Cpu && state.field_timings.auto_on_gpu()
+            }),
         };
         if on_gpu && state.field_gpu.is_none() {
             state.field_gpu = gpu.as_ref().map(|(device, queue, _, pipeline)| FieldGpu::new((**device).clone(), (**queue).clone(), (**pipeline).clone()));
@@ -536,6 +572,17 @@ mod tests {
     /// Fields that arrive faster than they blend in: the second waits for the first's blend; a third
     /// replaces it, and starts from where the shown blend ended (not from the waiting field, which was
     /// never shown), laid out by a background task, not on the main thread.
+    #[test]
+    fn auto_tries_the_gpu_then_the_cpu_then_keeps_the_faster() {
+        let t = |cpu, gpu| FieldTimings { cpu, gpu };
+        assert!(t(None, None).auto_on_gpu(), "the first field on the GPU");
+        assert!(!t(None, Some(0.01)).auto_on_gpu(), "the second on the CPU, to compare");
+        assert!(t(Some(0.5), Some(0.01)).auto_on_gpu());
+        assert!(!t(Some(0.4), Some(0.6)).auto_on_gpu(), "the CPU where it measured faster");
+        // Only a missing GPU measurement sends it back to the GPU.
+        assert!(t(Some(0.4), None).auto_on_gpu());
+    }
+
     #[test]
     fn a_field_replacing_a_waiting_one_starts_where_the_shown_blend_ends() {
         let occupancy = Arc::new(Vec::new());

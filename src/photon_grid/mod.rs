@@ -41,7 +41,7 @@
 //!    levels, no coarser than [`filter_levels`](PhotonGridSettings::filter_levels)). Rays that leave the grid see the environment map. The radiance and the distance are
 //!    projected on nine SH coefficients (bands 0–2) by Eq. 1 (§3.4.4: the distance is the fourth
 //!    component). Where [`field_device`](PhotonGridSettings::field_device) says so (by default on
-//!    hardware GPUs), this stage runs on the GPU, as in the paper: the background task uploads the
+//!    hardware GPUs where it measures faster), this stage runs on the GPU, as in the paper: the background task uploads the
 //!    V-grid, the R-grid and the directions, dispatches `shaders/photon_grid/field.wgsl` (a workgroup
 //!    per eight probes, each probe's directions split over eight threads, so that neighbouring threads
 //!    march one direction from neighbouring probes) in chunks of about 2¹⁸ rays, waiting for each so
@@ -146,9 +146,10 @@
 //! `cellar` 393–442 against 1 036–1 155, `sponza_like` 675–715 against 1 339–1 439, `dynamic`
 //! 1 158–1 280 against 2 268–2 784. On a CPU rasteriser the CPU path is faster (scalar walks on the
 //! same cores, against 8-wide SIMD batches that last as long as their longest walk), so
-//! [`FieldDevice::Auto`] builds there on the CPU; on hardware GPUs it builds on the GPU, as the paper
-//! does (its Table 1: milliseconds on a 2011 GPU). That choice is not measured: no session of this
-//! work had a hardware GPU. The two fields agree (block RMSE 0.0000–0.0002 between the images; 20 of
+//! [`FieldDevice::Auto`] builds there on the CPU. On hardware GPUs, where no session of this work could
+//! measure (none was lent), `Auto` measures at run time: the first field on the GPU (the paper's
+//! Table 1 has its field in milliseconds on a 2011 GPU), the second on the CPU, then on whichever built
+//! its last field faster per probe ray ([`FieldTimings`]). The two fields agree (block RMSE 0.0000–0.0002 between the images; 20 of
 //! `cornell`'s 11 523 probes cross the inside threshold on one and not the other, where a ray grazes a
 //! surface; `tests/gpu_photon_grid.rs`). The pipeline is made by the render world's pipeline cache when
 //! a preparation first asks for it, and handed to the background task.
@@ -187,8 +188,8 @@ use bevy::app::SubApp;
 use bevy::prelude::*;
 
 pub use extract::{
-    DIAGNOSTIC_FIELD, DIAGNOSTIC_RGRID, DIAGNOSTIC_TRACE, DIAGNOSTIC_VOXELIZE, DISTANCE_CELLS, PhotonGridActivity, PhotonGridCore,
-    PhotonGridOutput, PhotonGridState, PhotonGridTimes,
+    DIAGNOSTIC_FIELD, DIAGNOSTIC_RGRID, DIAGNOSTIC_TRACE, DIAGNOSTIC_VOXELIZE, DISTANCE_CELLS, FieldTimings, PhotonGridActivity,
+    PhotonGridCore, PhotonGridOutput, PhotonGridState, PhotonGridTimes,
 };
 pub use prepare::PhotonGridUniform;
 pub use settings::{FieldDevice, PhotonGridSettings};

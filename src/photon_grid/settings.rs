@@ -68,9 +68,12 @@ pub struct PhotonGridSettings {
 /// Where the photon grid builds its SH field ([`PhotonGridSettings::field_device`]).
 #[derive(Reflect, Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub enum FieldDevice {
-    /// The GPU on hardware GPUs (not measured: no hardware GPU was at hand), the CPU on software
-    /// rasterisers (lavapipe, where the CPU measured faster: `cornell` 2.0–2.2 s against 2.4–3.0 s,
-    /// `cellar` 0.4 s against 1.0–1.2 s; `docs/photon_grid.md`).
+    /// On hardware GPUs, measured at run time: the first field on the GPU, the second on the CPU, then
+    /// on whichever built its last field faster per probe ray ([`PhotonGridActivity::field_timings`](super::PhotonGridActivity));
+    /// one field built on the slower device is the cost of knowing. On software rasterisers the CPU,
+    /// always: lavapipe shares the CPU's cores, and the CPU measured faster there (`cornell` 2.0–2.2 s
+    /// against 2.4–3.0 s, `cellar` 0.4 s against 1.0–1.2 s; `docs/photon_grid.md`); a trial would also
+    /// delay the frames queued behind its dispatches.
     #[default]
     Auto,
     /// The CPU's threads (rayon), in the background task. After a mesh moved, only the probe rays that
