@@ -9,7 +9,8 @@
 //
 // The CPU twin, which the GPU test holds this to, is `ShField::build` in src/photon_grid/grid.rs
 // (`VGrid::march`, `probe_ray`, `RGrid::radiance`); the Rust side of every struct here is in
-// src/photon_grid/field_gpu.rs (`ShaderType`), and V_PER_SH is a shader def set from `grid::V_PER_SH`.
+// src/photon_grid/field_gpu.rs (`ShaderType`); V_PER_SH (`grid::V_PER_SH`), WORKGROUP_SIZE (the crate's) and
+// FIELD_PROBES (`field_gpu::PROBES_PER_GROUP`) are shader defs.
 
 const V_PER_SH: i32 = #{V_PER_SH};
 
@@ -74,14 +75,15 @@ struct FieldDirection {
 @group(0) @binding(8) var<storage, read_write> output: array<vec4<f32>>;
 
 const PI: f32 = 3.141592653589793;
-// Probes per workgroup, and threads per probe (PROBES × SPLIT = the workgroup's 64 threads).
-const PROBES: u32 = 8u;
-const SPLIT: u32 = 8u;
+// Threads per workgroup, probes per workgroup, and threads per probe.
+const THREADS: u32 = #{WORKGROUP_SIZE}u;
+const PROBES: u32 = #{FIELD_PROBES}u;
+const SPLIT: u32 = THREADS / PROBES;
 // Components smaller than this are treated as zero (`voxels::VoxelWalk`'s STILL).
 const STILL: f32 = 1e-8;
 
-var<workgroup> partial: array<array<vec4<f32>, 9>, 64>;
-var<workgroup> back_faces: array<atomic<u32>, 8>;
+var<workgroup> partial: array<array<vec4<f32>, 9>, THREADS>;
+var<workgroup> back_faces: array<atomic<u32>, PROBES>;
 
 fn bit(words_index: u32) -> u32 {
     return 1u << (words_index % 32u);
@@ -251,7 +253,7 @@ fn probe_ray(c: vec3<f32>, j: u32, hit: u32, back: ptr<function, bool>) -> vec4<
 // Thread `lid` of a workgroup takes probe `lid % PROBES` of the group's PROBES and every SPLIT-th
 // direction from `lid / PROBES`: neighbouring threads (one SIMD batch on a CPU rasteriser, part of a
 // warp on a GPU) march the same direction from neighbouring probes, so their walks take similar steps.
-@compute @workgroup_size(64, 1, 1)
+@compute @workgroup_size(#{WORKGROUP_SIZE}, 1, 1)
 fn field(@builtin(workgroup_id) group: vec3<u32>, @builtin(local_invocation_index) lid: u32) {
     let slot = lid % PROBES;
     let split = lid / PROBES;

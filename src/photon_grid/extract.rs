@@ -6,7 +6,7 @@ use std::sync::Arc;
 use bevy::diagnostic::DiagnosticPath;
 use bevy::prelude::*;
 use bevy::render::extract_resource::ExtractResource;
-use bevy::render::renderer::{RenderAdapterInfo, RenderDevice, RenderQueue};
+use bevy::render::renderer::{RenderAdapter, RenderDevice, RenderQueue};
 
 use super::field_gpu::{FieldGpu, FieldPipeline};
 use super::settings::FieldDevice;
@@ -15,6 +15,7 @@ use super::grid::{self, FieldParams, GridLayout, PhotonPaths, PhotonStats, Probe
 use super::prepare::PhotonGridUniform;
 use crate::background::{self, BackgroundJob, Blend, CpuJob, CpuMethodParams, JobKey, MethodUse};
 use crate::camera::GiMethod;
+use crate::method::GpuCapabilities;
 use crate::scene::{SceneSnapshot, SnapshotLight};
 
 /// The field the frame gathers from. Extracted to the render world.
@@ -245,7 +246,7 @@ pub(super) fn update_photon_grid(
     mut state: ResMut<PhotonGridState>,
     mut output: ResMut<PhotonGridOutput>,
     mut activity: ResMut<PhotonGridActivity>,
-    gpu: Option<(Res<RenderDevice>, Res<RenderQueue>, Res<RenderAdapterInfo>, Res<FieldPipeline>)>,
+    gpu: Option<(Res<RenderDevice>, Res<RenderQueue>, Res<RenderAdapter>, Res<FieldPipeline>)>,
 ) {
     params.cost.photon_grid_ms = 0.0;
     let (settings, scene) = match params.method_use(GiMethod::PhotonGrid) {
@@ -304,11 +305,14 @@ pub(super) fn update_photon_grid(
             FieldDevice::Cpu => false,
             FieldDevice::Gpu => true,
             FieldDevice::Auto => gpu.as_ref().is_some_and(|(_, _, adapter, _)| {
-                adapter.device_type != wgpu_types::DeviceType::Cpu && state.field_timings.auto_on_gpu()
+                adapter.get_info().device_type != wgpu_types::DeviceType::Cpu && state.field_timings.auto_on_gpu()
             }),
         };
         if on_gpu && state.field_gpu.is_none() {
-            state.field_gpu = gpu.as_ref().map(|(device, queue, _, pipeline)| FieldGpu::new((**device).clone(), (**queue).clone(), (**pipeline).clone()));
+            state.field_gpu = gpu.as_ref().map(|(device, queue, adapter, pipeline)| {
+                let capabilities = GpuCapabilities { limits: device.limits(), flags: adapter.get_downlevel_capabilities().flags };
+                FieldGpu::new((**device).clone(), (**queue).clone(), capabilities, (**pipeline).clone())
+            });
             if state.field_gpu.is_none() && !std::mem::replace(&mut state.field_gpu_failed, true) {
                 warn!("PhotonGridSettings::field_device: no render device to build the SH field on; it is built on the CPU");
             }
@@ -512,14 +516,17 @@ fn prepare(core: &mut PhotonGridCore, snapshot: &SceneSnapshot, key: &FieldKey, 
     let on_gpu = field_gpu.map(|gpu| gpu.build(&core.vgrid, &rgrid, environment, &field_params));
     let field_gpu_error = on_gpu.as_ref().and_then(|r| r.as_ref().err().cloned());
     let field_on_gpu = matches!(on_gpu, Some(Ok(_)));
-    let (field, rays_marched) = match on_gpu {
+    let (field, marched) = match on_gpu {
         Some(Ok(field)) => {
             core.rays = ProbeRays::default();
-            let rays = (field.coefficients.len() + field.inside as usize) * settings.sh_directions as usize;
-            (field, rays)
+            (field, None)
         }
-        _ => ShField::build_reusing(&core.vgrid, &rgrid, environment, &field_params, &mut core.rays, changed_geometry),
+        _ => {
+            let (field, marched) = ShField::build_reusing(&core.vgrid, &rgrid, environment, &field_params, &mut core.rays, changed_geometry);
+            (field, Some(marched))
+        }
     };
+    let rays = (field.coefficients.len() + field.inside as usize) * settings.sh_directions as usize;
     if !core.keep_records {
         core.rays = ProbeRays::default();
     }
@@ -534,8 +541,8 @@ fn prepare(core: &mut PhotonGridCore, snapshot: &SceneSnapshot, key: &FieldKey, 
         photons: photons.len(),
         stats,
         paths_traced,
-        rays: (field.coefficients.len() + field.inside as usize) * settings.sh_directions as usize,
-        rays_marched,
+        rays,
+        rays_marched: marched.unwrap_or(rays),
         kept_bytes: core.paths.bytes() + core.rays.bytes(),
         times,
         field_on_gpu,

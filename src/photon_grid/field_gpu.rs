@@ -22,6 +22,7 @@ use bevy::render::renderer::{RenderDevice, RenderQueue};
 use bevy::shader::{Shader, ShaderCacheError, ShaderDefVal};
 
 use super::grid::{self, FieldParams, RGrid, ShField, VGrid};
+use crate::method::{GpuCapabilities, Shortfall};
 use crate::scene::environment::Environment;
 
 /// `FieldParams` in `field.wgsl`.
@@ -59,15 +60,16 @@ struct FieldDirectionGpu {
     basis: [Vec4; 3],
 }
 
-/// Threads per workgroup (`field.wgsl`), and probes per workgroup (`PROBES`).
-const THREADS: u32 = 64;
+/// Threads per workgroup (the crate's, `WORKGROUP_SIZE` in `field.wgsl`), and probes per workgroup
+/// (`FIELD_PROBES`); each probe's directions are split over `THREADS / PROBES_PER_GROUP` threads.
+const THREADS: u32 = crate::WORKGROUP_SIZE;
 const PROBES_PER_GROUP: u32 = 8;
 /// Output `vec4`s per probe: nine coefficients and the back-face count.
 const OUTPUT_PER_PROBE: usize = 10;
 /// Probe rays per submission: the frame's own work runs between them.
 const RAYS_PER_SUBMISSION: u32 = 1 << 18;
 /// Storage buffers the pass binds (`field.wgsl`, group 0).
-const STORAGE_BUFFERS: u32 = 8;
+const STORAGE_BUFFERS: u64 = 8;
 /// Workgroup memory the pass uses, bytes: nine `vec4`s per thread and a counter per probe.
 const WORKGROUP_BYTES: u32 = THREADS * 9 * 16 + PROBES_PER_GROUP * 4;
 
@@ -133,7 +135,11 @@ pub(super) fn make_field_pipeline(shared: Res<FieldPipeline>, mut source: ResMut
             label: Some("diffuse_gi_photon_field_pipeline".into()),
             layout: vec![source.layout.clone()],
             shader: source.shader.clone(),
-            shader_defs: vec![ShaderDefVal::Int("V_PER_SH".into(), grid::V_PER_SH as i32)],
+            shader_defs: [
+                crate::shared_shader_defs(),
+                vec![ShaderDefVal::Int("V_PER_SH".into(), grid::V_PER_SH as i32), ShaderDefVal::UInt("FIELD_PROBES".into(), PROBES_PER_GROUP)],
+            ]
+            .concat(),
             entry_point: Some("field".into()),
             ..default()
         })
@@ -152,11 +158,13 @@ pub(super) fn make_field_pipeline(shared: Res<FieldPipeline>, mut source: ResMut
 /// on the CPU.
 const PIPELINE_WAIT: std::time::Duration = std::time::Duration::from_secs(60);
 
-/// The device and queue the field is built with, and its pipeline. Cheap to clone.
+/// The device and queue the field is built with, what the device offers, and its pipeline. Cheap to
+/// clone.
 #[derive(Clone)]
 pub struct FieldGpu {
     device: RenderDevice,
     queue: RenderQueue,
+    capabilities: GpuCapabilities,
     pipeline: FieldPipeline,
 }
 
@@ -167,30 +175,27 @@ impl std::fmt::Debug for FieldGpu {
 }
 
 impl FieldGpu {
-    pub fn new(device: RenderDevice, queue: RenderQueue, pipeline: FieldPipeline) -> Self {
-        Self { device, queue, pipeline }
+    pub fn new(device: RenderDevice, queue: RenderQueue, capabilities: GpuCapabilities, pipeline: FieldPipeline) -> Self {
+        Self { device, queue, capabilities, pipeline }
     }
 
-    /// Why a device with `limits` cannot build the field, if it cannot: the limits the pass needs.
-    pub fn missing_limits(limits: &WgpuLimits) -> Option<String> {
-        let mut missing = Vec::new();
-        if limits.max_storage_buffers_per_shader_stage < STORAGE_BUFFERS {
-            missing.push(format!("max_storage_buffers_per_shader_stage {} < {STORAGE_BUFFERS}", limits.max_storage_buffers_per_shader_stage));
-        }
-        if limits.max_compute_workgroup_storage_size < WORKGROUP_BYTES {
-            missing.push(format!("max_compute_workgroup_storage_size {} < {WORKGROUP_BYTES}", limits.max_compute_workgroup_storage_size));
-        }
-        if limits.max_compute_invocations_per_workgroup < THREADS || limits.max_compute_workgroup_size_x < THREADS {
-            missing.push(format!("max_compute_invocations_per_workgroup {} < {THREADS}", limits.max_compute_invocations_per_workgroup));
-        }
-        (!missing.is_empty()).then(|| missing.join(", "))
+    /// What the pass needs that `gpu` lacks (the methods' own check, [`GpuCapabilities::require`]):
+    /// compute shaders, eight storage buffers and its workgroup memory.
+    pub fn missing_capabilities(gpu: &GpuCapabilities) -> Vec<Shortfall> {
+        gpu.require()
+            .compute()
+            .storage_buffers(STORAGE_BUFFERS)
+            .at_least("max_compute_workgroup_storage_size", WORKGROUP_BYTES.into(), gpu.limits.max_compute_workgroup_storage_size.into())
+            .missing()
     }
 
     /// The pipeline, asking the render world for it and waiting (on this background thread) until it
     /// is made.
     fn pipeline(&self) -> Result<(ComputePipeline, BindGroupLayout), String> {
-        if let Some(missing) = Self::missing_limits(&self.device.limits()) {
-            return Err(missing);
+        let missing = Self::missing_capabilities(&self.capabilities);
+        if !missing.is_empty() {
+            let named: Vec<String> = missing.iter().map(|(name, required, found)| format!("{name}: needs {required}, has {found}")).collect();
+            return Err(format!("the GPU lacks {}", named.join(", ")));
         }
         let start = std::time::Instant::now();
         loop {
@@ -217,7 +222,7 @@ impl FieldGpu {
         let probes = grid::probe_cells(vgrid, &layout);
         let n = params.directions.max(1);
         if probes.is_empty() {
-            return Ok(ShField::from_probes(layout, &probes, Vec::new(), n));
+            return Ok(ShField::from_probes(layout, &probes, []));
         }
         let start = std::time::Instant::now();
         let (pipeline, bind_layout) = self.pipeline()?;
@@ -273,23 +278,19 @@ impl FieldGpu {
             inside_limit: grid::inside_limit(n),
         };
 
-        let max_binding = self.device.limits().max_storage_buffer_binding_size;
+        let limits = &self.capabilities.limits;
+        let max_binding = limits.max_storage_buffer_binding_size;
         let output_bytes = (probe_list.len() * OUTPUT_PER_PROBE * 16) as u64;
         let storage = |label: &str, bytes: &[u8]| -> Result<Buffer, String> {
             if bytes.len() as u64 > max_binding {
                 return Err(format!("{label}: {} bytes over max_storage_buffer_binding_size {max_binding}", bytes.len()));
             }
-            // An empty binding is not allowed: four zero bytes instead.
+            // An empty binding is not allowed: sixteen zero bytes instead.
             let contents: &[u8] = if bytes.is_empty() { &[0; 16] } else { bytes };
             Ok(self.device.create_buffer_with_data(&BufferInitDescriptor { label: Some(label), contents, usage: BufferUsages::STORAGE }))
         };
-        let encode_storage = |value: &dyn Fn(&mut encase::StorageBuffer<Vec<u8>>)| {
-            let mut buffer = encase::StorageBuffer::new(Vec::<u8>::new());
-            value(&mut buffer);
-            buffer.into_inner()
-        };
-        let levels_bytes = encode_storage(&|b| b.write(&levels).expect("R-grid levels"));
-        let directions_bytes = encode_storage(&|b| b.write(&directions).expect("directions"));
+        let levels_bytes = storage_bytes(&levels);
+        let directions_bytes = storage_bytes(&directions);
         if output_bytes > max_binding {
             return Err(format!("field output: {output_bytes} bytes over max_storage_buffer_binding_size {max_binding}"));
         }
@@ -326,7 +327,7 @@ impl FieldGpu {
         let bind_group = self.device.create_bind_group("diffuse_gi_photon_field_bind_group", bind_layout, &entries);
 
         // The probes in chunks, one submission each, waiting for each before the next.
-        let chunk = (RAYS_PER_SUBMISSION / n).div_ceil(PROBES_PER_GROUP).clamp(1, self.device.limits().max_compute_workgroups_per_dimension);
+        let chunk = (RAYS_PER_SUBMISSION / n).div_ceil(PROBES_PER_GROUP).clamp(1, limits.max_compute_workgroups_per_dimension);
         let total = probe_list.len() as u32;
         let mut first = 0;
         while first < total {
@@ -360,12 +361,12 @@ impl FieldGpu {
         receiver.recv().map_err(|e| format!("reading the field back: {e}"))?.map_err(|e| format!("reading the field back: {e}"))?;
         let values: Vec<Vec4> = bytemuck::cast_slice::<u8, f32>(&readback.slice(..).get_mapped_range()).chunks_exact(4).map(Vec4::from_slice).collect();
         readback.unmap();
-        let traced = values
+        let found: Vec<_> = values
             .chunks_exact(OUTPUT_PER_PROBE)
             .map(|p| {
                 let mut coefficients = [Vec4::ZERO; 9];
                 coefficients.copy_from_slice(&p[..9]);
-                (coefficients, p[9].x as u32)
+                grid::kept_probe(coefficients, p[9].x as u32, n)
             })
             .collect();
         bevy::log::debug!(
@@ -374,8 +375,15 @@ impl FieldGpu {
             dispatched - compiled,
             start.elapsed().as_secs_f32() * 1e3 - dispatched
         );
-        Ok(ShField::from_probes(layout, &probes, traced, n))
+        Ok(ShField::from_probes(layout, &probes, found))
     }
+}
+
+/// `value` laid out as a storage buffer holds it (`ShaderType`), as bytes to upload.
+fn storage_bytes<T: ShaderType + encase::internal::WriteInto>(value: &T) -> Vec<u8> {
+    let mut buffer = encase::StorageBuffer::new(Vec::<u8>::new());
+    buffer.write(value).expect("a storage layout");
+    buffer.into_inner()
 }
 
 #[cfg(test)]
@@ -384,10 +392,12 @@ mod tests {
 
     #[test]
     fn webgpu_default_limits_build_the_field_and_downlevel_ones_name_what_they_lack() {
-        assert_eq!(FieldGpu::missing_limits(&WgpuLimits::default()), None);
-        let missing = FieldGpu::missing_limits(&WgpuLimits::downlevel_defaults()).expect("four storage buffers are too few");
-        assert!(missing.contains("max_storage_buffers_per_shader_stage 4 < 8"), "{missing}");
-        let webgl = FieldGpu::missing_limits(&WgpuLimits::downlevel_webgl2_defaults()).expect("no compute on WebGL2");
-        assert!(webgl.contains("max_compute_workgroup_storage_size 0"), "{webgl}");
+        assert_eq!(FieldGpu::missing_capabilities(&GpuCapabilities::desktop()), vec![]);
+        let downlevel = GpuCapabilities { limits: WgpuLimits::downlevel_defaults(), flags: DownlevelFlags::all() };
+        assert_eq!(FieldGpu::missing_capabilities(&downlevel), vec![("max_storage_buffers_per_shader_stage", 8, 4)], "four storage buffers are too few");
+        let webgl = FieldGpu::missing_capabilities(&GpuCapabilities::webgl2());
+        let names: Vec<_> = webgl.iter().map(|m| m.0).collect();
+        assert!(names.iter().any(|n| n.contains("COMPUTE_SHADERS")), "no compute on WebGL2: {names:?}");
+        assert!(webgl.contains(&("max_compute_workgroup_storage_size", WORKGROUP_BYTES.into(), 0)), "{webgl:?}");
     }
 }

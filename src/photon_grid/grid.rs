@@ -1228,35 +1228,27 @@ impl ShField {
                 (hits, marched, kept_probe(coefficients, back, n))
             })
             .collect();
-        let mut cell_probe = vec![u32::MAX; layout.cell_count()];
-        let mut coefficients = Vec::with_capacity(probes.len());
-        let mut inside = 0;
         let mut marched = 0;
         let mut kept = ProbeRays { layout: Some(layout), directions: n, cells: Vec::with_capacity(probes.len()), hits: Vec::with_capacity(probes.len() * n as usize) };
+        let mut found = Vec::with_capacity(probes.len());
         for (&i, (hits, m, p)) in probes.iter().zip(traced) {
             kept.cells.push(i as u32);
             kept.hits.extend_from_slice(&hits);
             marched += m;
-            match p {
-                Some(c) => {
-                    cell_probe[i] = coefficients.len() as u32;
-                    coefficients.push(c);
-                }
-                None => inside += 1,
-            }
+            found.push(p);
         }
         *rays = kept;
-        (Self { layout: Some(layout), cell_probe, coefficients, inside }, marched)
+        (Self::from_probes(layout, &probes, found), marched)
     }
 
-    /// The field from each probe cell's coefficients and the count of its rays that met the back of a
-    /// surface, in the order of `probes` ([`probe_cells`]): the probes inside solid geometry dropped.
-    pub(super) fn from_probes(layout: GridLayout, probes: &[usize], traced: Vec<([Vec4; 9], u32)>, directions: u32) -> Self {
+    /// The field from each probe cell's coefficients, in the order of `probes` ([`probe_cells`]):
+    /// `None` for a probe dropped ([`kept_probe`]).
+    pub(super) fn from_probes(layout: GridLayout, probes: &[usize], found: impl IntoIterator<Item = Option<[Vec4; 9]>>) -> Self {
         let mut cell_probe = vec![u32::MAX; layout.cell_count()];
         let mut coefficients = Vec::with_capacity(probes.len());
         let mut inside = 0;
-        for (&i, (c, back)) in probes.iter().zip(traced) {
-            match kept_probe(c, back, directions) {
+        for (&i, p) in probes.iter().zip(found) {
+            match p {
                 Some(c) => {
                     cell_probe[i] = coefficients.len() as u32;
                     coefficients.push(c);
